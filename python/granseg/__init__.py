@@ -1,0 +1,63 @@
+"""granseg: density-driven granular segregation in an annular shear cell.
+
+The public API, chosen rather than whatever is importable::
+
+    granseg.simulate(...)        one run of the segregation-diffusion model
+    granseg.steady_state(...)    the long-time profile, solved directly in z
+    granseg.sweep(grid, ...)     a parallel full-factorial of runs (Rust, rayon)
+    granseg.analyze(path, ...)   camera frames or video -> concentration map
+    granseg.load_map(path)       a measured map (.npz), validated
+    granseg.load_campaign(dir)   every map of a campaign directory
+    granseg.calibrate(...)       factorial design + refinement of (k, delta/H)
+    granseg.diagnose(...)        what the model gets wrong, and why
+    granseg.fit, granseg.synth   curve fits; synthetic frames and campaigns
+
+SI units throughout (m, s, kg, Pa). Names are imported lazily so that the
+command line starts fast and the frame pipeline does not load the solver.
+"""
+
+from __future__ import annotations
+
+import importlib
+from typing import Any
+
+from granseg.errors import FitError, GransegError, SolverError
+
+__version__ = "0.1.0"
+
+# public name -> (module, attribute or None for the module itself)
+_LAZY: dict[str, tuple[str, str | None]] = {
+    "simulate": ("granseg.model", "simulate"),
+    "steady_state": ("granseg.model", "steady_state"),
+    "sweep": ("granseg.model", "sweep"),
+    "defaults": ("granseg.model", "defaults"),
+    "Solution": ("granseg.model", "Solution"),
+    "SweepResult": ("granseg.model", "SweepResult"),
+    "MATERIALS": ("granseg.model", "MATERIALS"),
+    "analyze": ("granseg.measure", "analyze"),
+    "load_map": ("granseg.maps", "load_map"),
+    "load_campaign": ("granseg.maps", "load_campaign"),
+    "Map": ("granseg.maps", "Map"),
+    "calibrate": ("granseg.calibrate", "calibrate"),
+    "diagnose": ("granseg.diagnose", "diagnose"),
+    "fit": ("granseg.fit", None),
+    "synth": ("granseg.synth", None),
+    "plot": ("granseg.plot", None),
+}
+
+__all__ = sorted([*_LAZY, "SolverError", "FitError", "GransegError", "__version__"])
+
+
+def __getattr__(name: str) -> Any:
+    try:
+        module_name, attr = _LAZY[name]
+    except KeyError:
+        raise AttributeError(f"module 'granseg' has no attribute {name!r}") from None
+    module = importlib.import_module(module_name)
+    value = module if attr is None else getattr(module, attr)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return __all__

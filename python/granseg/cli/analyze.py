@@ -1,0 +1,46 @@
+"""``granseg analyze PATH``: camera frames or a video -> concentration map (.npz)."""
+
+from __future__ import annotations
+
+import argparse
+import warnings
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    """Add the ``analyze`` command."""
+    p = subparsers.add_parser(
+        "analyze", help="measure the concentration map from frames or a video",
+        description="Undistort, detect and classify the spheres in every frame and write the "
+        "heavy-concentration map (DATA.md). PATH is a directory of PNG/JPEG frames holding "
+        "experiment.json, or a video file with experiment.json beside it.")
+    p.add_argument("path", metavar="PATH", help="frames directory or video file")
+    p.add_argument("--out", metavar="FILE", help="map file to write (default: map.npz beside experiment.json)")
+    p.add_argument("--smooth", metavar="N", type=int, default=5,
+                   help="centred moving average over N frames (odd; 1 = none; default 5)")
+    p.add_argument("--preview", metavar="DIR", help="write annotated preview images to DIR")
+    p.add_argument("--preview-count", metavar="K", type=int, default=6,
+                   help="number of preview frames spread over the run (default 6)")
+    p.add_argument("--workers", metavar="N", type=int, help="parallel workers (default: all cores)")
+    p.add_argument("--force", action="store_true", help="overwrite existing output files")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run the analysis and print a short summary."""
+    from granseg.measure import BadFrameWarning, analyze
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", BadFrameWarning)
+        result = analyze(args.path, out=args.out, smooth=args.smooth, preview=args.preview,
+                         preview_count=args.preview_count, force=args.force,
+                         workers=args.workers, progress=not args.no_progress)
+    for w in caught:
+        print(f"warning: {w.message}")
+    good = len(result.frame_names) - len(result.bad_frames)
+    print(f"{len(result.frame_names)} frames, {good} analysed, {len(result.bad_frames)} bad frames")
+    print(f"spheres per frame in the window: {result.n.sum(axis=1)[result.n.sum(axis=1) > 0].mean():.1f}")
+    print(f"map written to {result.out} (smoothing_frames = {result.smoothing_frames})")
+    if result.previews:
+        print(f"{len(result.previews)} preview images in {result.previews[0].parent}")
+    return 0

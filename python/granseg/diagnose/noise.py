@@ -1,0 +1,124 @@
+"""The measurement-noise floor, estimated from the maps themselves.
+
+"Beyond noise" needs a number: the RMSD [-] that a *perfect* model would still
+show against a map, because the map counts a few spheres per layer and frame.
+
+With counts (``n``, ``n_heavy``/``c_raw`` in the map, as the frame analysis
+writes them) the per-frame variance of the heavy share is binomial,
+var_raw = c (1 - c) / n, with c the smoothed map. Spheres that stay in view
+from frame to frame make successive frames correlated; the lag-one
+correlation rho_k of each layer at lag k follows from the scatter of
+frames k apart, E[(c_raw(t+k) - c_raw(t))^2] = 2 var_raw (1 - rho_k), for
+every lag inside the averaging window. The moving average of N frames then
+leaves var_raw * (1/N^2) sum_{a,b} rho_|a-b| (N shrinks at the ends of the
+series as the average does).
+
+Without counts only the frame-to-frame scatter of the map itself is
+available: the variance of c(t + L) - c(t) at a lag L of one smoothing window
+(where the averaging windows no longer overlap) is twice the noise variance
+when the noise decorrelates within a window - a lower bound otherwise, and
+flagged as such.
+
+The floor of an experiment is sqrt(mean variance over its map's entries); the
+campaign's floor is the mean over experiments, comparable with the mean RMSD.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from granseg.maps import Map, moving_average
+
+__all__ = ["NoiseEstimate", "noise_floor", "campaign_floor"]
+
+
+@dataclass(frozen=True)
+class NoiseEstimate:
+    """Noise floor of one map: ``floor`` [-] (expected RMSD of a perfect model),
+    ``sd`` (n_t, n_layers) per-entry standard deviation [-], ``rho`` per-layer
+    lag-one frame-to-frame correlation [-] (NaN if unknown), ``method``."""
+
+    name: str
+    floor: float
+    sd: np.ndarray
+    rho: np.ndarray
+    method: str
+
+
+def _ma_factor(rho: np.ndarray, n_t: int, window: int) -> np.ndarray:
+    """Variance reduction (n_t,) of the centred moving average of noise with
+    lag correlations ``rho[k-1]`` (k = 1 .. window-1)."""
+    half = (window - 1) // 2
+    i = np.arange(n_t)
+    h = np.minimum(np.minimum(half, i), n_t - 1 - i)
+    out = np.empty(n_t)
+    for hh in np.unique(h):
+        n = 2 * hh + 1
+        k = np.arange(1, n)
+        out[h == hh] = (n + 2.0 * float(((n - k) * rho[: n - 1]).sum())) / n**2
+    return out
+
+
+def _layer_rho(c_raw: np.ndarray, var_raw: np.ndarray, max_lag: int) -> np.ndarray:
+    """Correlation (n_layers, max_lag) of the counting noise at lags 1..max_lag, in [0, 0.995].
+
+    From E[(c_raw(t+k) - c_raw(t))^2] = 2 var_raw (1 - rho_k): no shape is
+    assumed for the decay (grains leave the window at a rate set by the flow,
+    the count itself changes from frame to frame).
+    """
+    n_l = c_raw.shape[1]
+    rho = np.full((n_l, max(max_lag, 1)), np.nan)
+    for k in range(1, max_lag + 1):
+        d2 = (c_raw[k:] - c_raw[:-k]) ** 2
+        v = 0.5 * (var_raw[k:] + var_raw[:-k])
+        ok = np.isfinite(d2) & np.isfinite(v)
+        for j in range(n_l):
+            vj = v[ok[:, j], j].sum()
+            if ok[:, j].sum() > 10 and vj > 1e-9 * ok[:, j].sum():
+                rho[j, k - 1] = 1.0 - d2[ok[:, j], j].sum() / (2.0 * vj)
+    fill = np.nanmedian(rho, axis=0) if np.any(np.isfinite(rho)) else np.zeros(rho.shape[1])
+    fill = np.where(np.isfinite(fill), fill, 0.0)
+    return np.clip(np.where(np.isfinite(rho), rho, fill[None, :]), 0.0, 0.995)
+
+
+def _from_counts(m: Map) -> NoiseEstimate:
+    n = m.n.astype(float)
+    c_raw = m.c_raw if m.c_raw is not None else np.where(n > 0, m.n_heavy / np.maximum(n, 1), np.nan)
+    c_hat = np.clip(m.c, 0.0, 1.0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        var_raw = np.where(n > 0, c_hat * (1.0 - c_hat) / n, np.nan)
+    rho = _layer_rho(c_raw, var_raw, m.smoothing_frames - 1)
+    var = np.column_stack([var_raw[:, j] * _ma_factor(rho[j], m.n_times, m.smoothing_frames)
+                           for j in range(m.n_layers)])
+    return _estimate(m, var, rho[:, 0], "counts (binomial, measured frame-to-frame correlation, moving average)")
+
+
+def _from_scatter(m: Map) -> NoiseEstimate:
+    lag = max(1, m.smoothing_frames)
+    d = m.c[lag:] - m.c[:-lag]
+    # the drift of the signal over one lag is removed by a wider average of the differences
+    drift = moving_average(d, 2 * lag + 1 if lag > 1 else 3)
+    var_layer = np.nanmean((d - drift) ** 2, axis=0) / 2.0
+    var = np.broadcast_to(var_layer, m.c.shape).copy()
+    return _estimate(m, var, np.full(m.n_layers, np.nan), "frame-to-frame scatter of c (lower bound)")
+
+
+def _estimate(m: Map, var: np.ndarray, rho: np.ndarray, method: str) -> NoiseEstimate:
+    mask = np.isfinite(m.c) & np.isfinite(var)
+    floor = float(np.sqrt(np.mean(var[mask]))) if mask.any() else float("nan")
+    return NoiseEstimate(m.name, floor, np.sqrt(np.clip(var, 0, None)), rho, method)
+
+
+def noise_floor(m: Map) -> NoiseEstimate:
+    """The noise floor of one map: from its counts if it has them, else from its scatter."""
+    if m.n is not None and (m.n_heavy is not None or m.c_raw is not None):
+        return _from_counts(m)
+    return _from_scatter(m)
+
+
+def campaign_floor(maps: list[Map]) -> tuple[float, list[NoiseEstimate]]:
+    """Mean noise floor [-] over the experiments, and each experiment's estimate."""
+    est = [noise_floor(m) for m in maps]
+    return float(np.nanmean([e.floor for e in est])), est

@@ -1,0 +1,456 @@
+"""Measured concentration maps and campaigns: the ``.npz`` formats of DATA.md.
+
+A *map* is one experiment: the heavy share ``c`` [-] of each horizontal layer
+(``z`` [m], layer centres above the bottom wall) at each time ``t`` [s], plus
+the materials, densities [kg/m^3], the overall heavy fraction ``c0`` [-] and
+the masses ``M_g`` (grains) and ``M_w`` (lid load) [kg]. A *campaign* is a
+directory of such maps.
+
+Readers validate everything and reject a bad file with one message that names
+the file and the field; they never guess a missing value. Writers are atomic
+and refuse to replace an existing file unless ``force=True``.
+
+Example::
+
+    >>> m = load_map("G-PP-50.npz")                         # doctest: +SKIP
+    >>> m.delta_R, m.M_tilde, m.n_layers                    # doctest: +SKIP
+    (2.59, 0.536, 15)
+
+:func:`moving_average` is the one centred moving average of the project (the
+window shrinks symmetrically at the ends of the series); the frame pipeline,
+the calibration and the plots all use it.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Iterator, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from granseg._io import save_npz
+
+__all__ = [
+    "Map",
+    "Campaign",
+    "MapFormatError",
+    "save_map",
+    "load_map",
+    "load_campaign",
+    "moving_average",
+]
+
+REQUIRED = ("c", "t", "z", "name", "heavy", "light", "rho_h", "rho_l", "c0", "M_g", "M_w")
+OPTIONAL = ("n", "n_heavy", "c_raw", "fps", "smoothing_frames")
+
+
+class MapFormatError(ValueError):
+    """A map file or map data break the DATA.md format (names file and field)."""
+
+
+# --------------------------------------------------------------------------- smoothing
+
+
+def moving_average(x: Any, n: int, axis: int = 0) -> np.ndarray:
+    """Centred moving average of width ``n`` along ``axis`` (time, for a map).
+
+    At sample ``i`` of a series of length ``N`` the window is
+    ``x[i - h : i + h + 1]`` with ``h = min((n - 1) // 2, i, N - 1 - i)``: it
+    shrinks symmetrically near the ends, so the first and last samples are
+    kept as they are. ``n`` must be a positive odd integer (1 = no smoothing).
+    NaN entries (no reading) are skipped; a window with no finite value gives
+    NaN. Units are those of ``x``.
+
+    >>> moving_average([0.0, 1.0, 2.0, 6.0], 3).tolist()
+    [0.0, 1.0, 3.0, 6.0]
+    """
+    n = _check_window(n)
+    a = np.asarray(x, dtype=float)
+    if a.ndim == 0:
+        raise ValueError("moving_average: x must have at least one dimension")
+    a = np.moveaxis(a, axis, 0)
+    out = _centred_mean(a, (n - 1) // 2)
+    return np.moveaxis(out, 0, axis)
+
+
+def _check_window(n: Any) -> int:
+    if isinstance(n, bool) or not isinstance(n, int | np.integer):
+        raise ValueError(f"smoothing window n must be an odd integer >= 1, got {n!r}")
+    if n < 1 or n % 2 == 0:
+        raise ValueError(
+            f"smoothing window n must be an odd integer >= 1 (centred, symmetric), got {n}"
+        )
+    return int(n)
+
+
+def _centred_mean(a: np.ndarray, half: int) -> np.ndarray:
+    """Mean over rows ``i-h .. i+h`` with ``h = min(half, i, N-1-i)``, NaN-aware.
+
+    Sums the shifted rows directly (no running sums), so a window of equal
+    values returns exactly that value and width 1 returns the input.
+    """
+    n_rows = a.shape[0]
+    i = np.arange(n_rows)
+    h = np.minimum(np.minimum(half, i), n_rows - 1 - i)
+    total = np.zeros(a.shape)
+    count = np.zeros(a.shape)
+    shape = (n_rows,) + (1,) * (a.ndim - 1)
+    for d in range(-half, half + 1):
+        use = (np.abs(d) <= h).reshape(shape)
+        rows = a[np.clip(i + d, 0, n_rows - 1)]
+        ok = use & np.isfinite(rows)
+        total += np.where(ok, rows, 0.0)
+        count += ok
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(count > 0, total / np.maximum(count, 1), np.nan)
+
+
+# --------------------------------------------------------------------------- objects
+
+
+@dataclass(frozen=True, eq=False)
+class Map:
+    """One experiment's measured concentration map (SI units).
+
+    Arrays: ``c`` (n_t, n_layers) heavy share [-] (NaN = no reading), ``t``
+    (n_t,) [s], ``z`` (n_layers,) layer centres [m]; optional ``n``,
+    ``n_heavy`` (particle counts), ``c_raw`` (share before smoothing).
+    Metadata: ``name``, ``heavy``, ``light``, ``rho_h``, ``rho_l`` [kg/m^3],
+    ``c0`` [-], ``M_g``, ``M_w`` [kg], ``fps`` [1/s] or None,
+    ``smoothing_frames`` (width of the moving average already in ``c``).
+    """
+
+    c: np.ndarray
+    t: np.ndarray
+    z: np.ndarray
+    name: str
+    heavy: str
+    light: str
+    rho_h: float
+    rho_l: float
+    c0: float
+    M_g: float
+    M_w: float
+    n: np.ndarray | None = None
+    n_heavy: np.ndarray | None = None
+    c_raw: np.ndarray | None = None
+    fps: float | None = None
+    smoothing_frames: int = 1
+    path: Path | None = None
+    extra: Mapping[str, np.ndarray] = field(default_factory=dict)
+
+    @property
+    def delta_R(self) -> float:
+        """Density ratio rho_h / rho_l [-]."""
+        return self.rho_h / self.rho_l
+
+    @property
+    def M_tilde(self) -> float:
+        """Normalised load M~ = M_w / M_g [-]."""
+        return self.M_w / self.M_g
+
+    @property
+    def n_layers(self) -> int:
+        """Number of horizontal layers (15 for the paper's window)."""
+        return int(self.c.shape[1])
+
+    @property
+    def n_times(self) -> int:
+        """Number of frames (rows of ``c``)."""
+        return int(self.c.shape[0])
+
+    @property
+    def bottom(self) -> np.ndarray:
+        """The bottom-layer series c[:, 0] [-] (the "bottom concentration")."""
+        return self.c[:, 0]
+
+    def measured(self) -> dict[str, Any]:
+        """The dict ``granseg.sweep(measured=[...])`` takes for this map."""
+        return {"c": self.c, "t": self.t, "smoothing_frames": self.smoothing_frames}
+
+    def case(self) -> dict[str, float]:
+        """Model parameters this experiment fixes: rho_h, rho_l, c0, M_w."""
+        return {"rho_h": self.rho_h, "rho_l": self.rho_l, "c0": self.c0, "M_w": self.M_w}
+
+    def to_arrays(self) -> dict[str, Any]:
+        """Every DATA.md key of this map (optional ones only when present)."""
+        out: dict[str, Any] = {k: getattr(self, k) for k in REQUIRED}
+        for key in OPTIONAL:
+            value = getattr(self, key)
+            if value is not None:
+                out[key] = value
+        return out
+
+    def save(self, path: str | os.PathLike, force: bool = False) -> Path:
+        """Write this map to ``path`` (``.npz``), atomically; see :func:`save_map`."""
+        return save_map(path, force=force, **self.to_arrays())
+
+
+@dataclass(frozen=True, eq=False)
+class Campaign:
+    """Every map of a campaign directory, sorted by experiment name."""
+
+    maps: tuple[Map, ...]
+    directory: Path
+
+    def __len__(self) -> int:
+        return len(self.maps)
+
+    def __iter__(self) -> Iterator[Map]:
+        return iter(self.maps)
+
+    def __getitem__(self, key: int | str) -> Map:
+        if isinstance(key, str):
+            for m in self.maps:
+                if m.name == key:
+                    return m
+            raise KeyError(f"{self.directory}: no experiment named {key!r}")
+        return self.maps[key]
+
+    @property
+    def names(self) -> list[str]:
+        """Experiment names, in campaign order."""
+        return [m.name for m in self.maps]
+
+    @property
+    def n_layers(self) -> int:
+        """Layer count shared by every map."""
+        return self.maps[0].n_layers
+
+
+# --------------------------------------------------------------------------- validation
+
+
+def _fail(source: str, key: str, msg: str) -> MapFormatError:
+    return MapFormatError(f"{source}: field '{key}': {msg}")
+
+
+def _float_array(source: str, key: str, value: Any, ndim: int) -> np.ndarray:
+    arr = np.asarray(value)
+    if arr.dtype.kind not in "fiu" or arr.dtype.kind == "b":
+        raise _fail(source, key, f"expected a numeric array, got dtype {arr.dtype}")
+    if arr.ndim != ndim:
+        raise _fail(source, key, f"expected {ndim} dimension(s), got shape {arr.shape}")
+    return np.array(arr, dtype=float)
+
+
+def _scalar(source: str, key: str, value: Any, lo: float, hi: float, lo_open: bool) -> float:
+    arr = np.asarray(value)
+    if arr.shape != () or arr.dtype.kind not in "fiu":
+        raise _fail(source, key, f"expected a number, got {value!r}")
+    v = float(arr)
+    bad_lo = v <= lo if lo_open else v < lo
+    if not np.isfinite(v) or bad_lo or v > hi:
+        bracket = "(" if lo_open else "["
+        raise _fail(source, key, f"value {v} outside {bracket}{lo}, {hi}]")
+    return v
+
+
+def _text(source: str, key: str, value: Any) -> str:
+    arr = np.asarray(value)
+    if arr.shape != () or arr.dtype.kind not in "US":
+        raise _fail(source, key, f"expected a string, got {value!r}")
+    text = str(arr.item() if arr.dtype.kind == "U" else arr.item().decode())
+    if key == "name" and not text.strip():
+        raise _fail(source, key, "experiment name is empty")
+    return text
+
+
+def _increasing(source: str, key: str, a: np.ndarray, lo: float) -> None:
+    if a.size == 0:
+        raise _fail(source, key, "is empty")
+    if not np.all(np.isfinite(a)):
+        raise _fail(source, key, "contains NaN or infinite values")
+    if np.any(a < lo):
+        raise _fail(source, key, f"contains values below {lo}")
+    if np.any(np.diff(a) <= 0):
+        raise _fail(source, key, "is not strictly increasing")
+
+
+def _share(source: str, key: str, a: np.ndarray, shape: tuple[int, ...]) -> None:
+    if a.shape != shape:
+        raise _fail(source, key, f"shape {a.shape} does not match (n_t, n_layers) = {shape}")
+    finite = a[~np.isnan(a)]
+    if np.any(~np.isfinite(finite)) or np.any((finite < 0) | (finite > 1)):
+        raise _fail(source, key, "values must lie in [0, 1] (NaN = no reading)")
+
+
+def _counts(source: str, key: str, value: Any, shape: tuple[int, ...]) -> np.ndarray:
+    arr = np.asarray(value)
+    if arr.dtype.kind not in "iu":
+        raise _fail(source, key, f"expected an integer array, got dtype {arr.dtype}")
+    if arr.shape != shape:
+        raise _fail(source, key, f"shape {arr.shape} does not match (n_t, n_layers) = {shape}")
+    if np.any(arr < 0):
+        raise _fail(source, key, "counts must be >= 0")
+    return np.array(arr, dtype=np.int64)
+
+
+def _validate(source: str, raw: Mapping[str, Any]) -> dict[str, Any]:
+    """Check every DATA.md field of ``raw``; return clean typed values."""
+    for key in REQUIRED:
+        if key not in raw:
+            raise _fail(source, key, "missing (required by DATA.md)")
+    out = _validate_arrays(source, raw)
+    out.update(_validate_metadata(source, raw))
+    out.update(_validate_optional(source, raw, out["c"].shape))
+    return out
+
+
+def _validate_arrays(source: str, raw: Mapping[str, Any]) -> dict[str, Any]:
+    c = _float_array(source, "c", raw["c"], 2)
+    t = _float_array(source, "t", raw["t"], 1)
+    z = _float_array(source, "z", raw["z"], 1)
+    if c.shape[0] == 0 or c.shape[1] == 0:
+        raise _fail(source, "c", f"empty map, shape {c.shape}")
+    _share(source, "c", c, c.shape)
+    if np.all(np.isnan(c)):
+        raise _fail(source, "c", "every entry is NaN (no reading at all)")
+    _increasing(source, "t", t, 0.0)
+    _increasing(source, "z", z, 0.0)
+    if t.shape[0] != c.shape[0]:
+        raise _fail(source, "t", f"length {t.shape[0]} != rows of c ({c.shape[0]})")
+    if z.shape[0] != c.shape[1]:
+        raise _fail(source, "z", f"length {z.shape[0]} != columns of c ({c.shape[1]})")
+    return {"c": c, "t": t, "z": z}
+
+
+def _validate_metadata(source: str, raw: Mapping[str, Any]) -> dict[str, Any]:
+    out: dict[str, Any] = {k: _text(source, k, raw[k]) for k in ("name", "heavy", "light")}
+    out["rho_h"] = _scalar(source, "rho_h", raw["rho_h"], 0.0, np.inf, True)
+    out["rho_l"] = _scalar(source, "rho_l", raw["rho_l"], 0.0, np.inf, True)
+    if out["rho_h"] < out["rho_l"]:
+        raise _fail(source, "rho_h", f"{out['rho_h']} < rho_l = {out['rho_l']} (heavy must not be lighter)")
+    out["c0"] = _scalar(source, "c0", raw["c0"], 0.0, 1.0, True)
+    if out["c0"] >= 1.0:
+        raise _fail(source, "c0", f"value {out['c0']} outside (0, 1)")
+    out["M_g"] = _scalar(source, "M_g", raw["M_g"], 0.0, np.inf, True)
+    out["M_w"] = _scalar(source, "M_w", raw["M_w"], 0.0, np.inf, False)
+    return out
+
+
+def _validate_optional(source: str, raw: Mapping[str, Any], shape: tuple[int, ...]) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    if raw.get("n") is not None:
+        out["n"] = _counts(source, "n", raw["n"], shape)
+    if raw.get("n_heavy") is not None:
+        out["n_heavy"] = _counts(source, "n_heavy", raw["n_heavy"], shape)
+        if "n" in out and np.any(out["n_heavy"] > out["n"]):
+            raise _fail(source, "n_heavy", "more heavy particles than particles counted (n)")
+    if raw.get("c_raw") is not None:
+        out["c_raw"] = _float_array(source, "c_raw", raw["c_raw"], 2)
+        _share(source, "c_raw", out["c_raw"], shape)
+    if raw.get("fps") is not None:
+        out["fps"] = _scalar(source, "fps", raw["fps"], 0.0, np.inf, True)
+    if raw.get("smoothing_frames") is not None:
+        out["smoothing_frames"] = _smoothing(source, raw["smoothing_frames"])
+    return out
+
+
+def _smoothing(source: str, value: Any) -> int:
+    arr = np.asarray(value)
+    if arr.shape != () or arr.dtype.kind not in "iu":
+        raise _fail(source, "smoothing_frames", f"expected an integer, got {value!r}")
+    try:
+        return _check_window(int(arr))
+    except ValueError as exc:
+        raise _fail(source, "smoothing_frames", str(exc)) from None
+
+
+# --------------------------------------------------------------------------- files
+
+
+def save_map(
+    path: str | os.PathLike,
+    *,
+    c: Any,
+    t: Any,
+    z: Any,
+    name: str,
+    heavy: str,
+    light: str,
+    rho_h: float,
+    rho_l: float,
+    c0: float,
+    M_g: float,
+    M_w: float,
+    force: bool = False,
+    **optional: Any,
+) -> Path:
+    """Validate a map and write it to ``path`` (``.npz``) atomically.
+
+    Units as in DATA.md: ``c`` [-] (n_t, n_layers), ``t`` [s], ``z`` [m],
+    densities [kg/m^3], masses [kg]. ``optional`` may hold ``n``,
+    ``n_heavy``, ``c_raw``, ``fps`` [1/s] and ``smoothing_frames``; any other
+    key is refused (so a typo is not silently dropped). Refuses to replace an
+    existing file unless ``force``. Returns the path written.
+    """
+    unknown = sorted(set(optional) - set(OPTIONAL))
+    if unknown:
+        raise MapFormatError(f"{path}: unknown field(s) {unknown}; optional fields are {list(OPTIONAL)}")
+    raw = dict(c=c, t=t, z=z, name=name, heavy=heavy, light=light, rho_h=rho_h,
+               rho_l=rho_l, c0=c0, M_g=M_g, M_w=M_w, **optional)
+    clean = _validate(str(path), raw)
+    arrays = {k: (np.str_(v) if isinstance(v, str) else v) for k, v in clean.items()}
+    return save_npz(path, arrays, force=force)
+
+
+def load_map(path: str | os.PathLike) -> Map:
+    """Read and validate one map ``.npz`` (DATA.md); raise MapFormatError naming the field.
+
+    Unknown keys are kept in ``Map.extra`` and otherwise ignored.
+    """
+    p = Path(path)
+    if not p.is_file():
+        raise FileNotFoundError(f"{p}: map file not found")
+    try:
+        with np.load(p, allow_pickle=False) as data:
+            raw = {k: data[k] for k in data.files}
+    except (OSError, ValueError, EOFError) as exc:
+        raise MapFormatError(f"{p}: not a readable .npz archive ({exc})") from None
+    clean = _validate(str(p), raw)
+    extra = {k: v for k, v in raw.items() if k not in REQUIRED and k not in OPTIONAL}
+    return Map(**clean, path=p, extra=extra)
+
+
+def load_campaign(directory: str | os.PathLike) -> Campaign:
+    """Load every ``*.npz`` map in ``directory``, sorted by experiment name.
+
+    Raises FileNotFoundError for a missing directory and MapFormatError for a
+    directory with no maps, a bad map (naming its file and field), maps with
+    different layer counts, or two maps with the same experiment name.
+    """
+    d = Path(directory)
+    if not d.is_dir():
+        raise FileNotFoundError(f"{d}: campaign directory not found")
+    files = sorted(f for f in d.glob("*.npz") if f.is_file())
+    if not files:
+        raise MapFormatError(f"{d}: campaign has no map files (*.npz)")
+    maps = [load_map(f) for f in files]
+    _check_unique(d, maps)
+    _check_layers(d, maps)
+    maps.sort(key=lambda m: m.name)
+    return Campaign(maps=tuple(maps), directory=d)
+
+
+def _check_unique(d: Path, maps: list[Map]) -> None:
+    seen: dict[str, Path | None] = {}
+    for m in maps:
+        if m.name in seen:
+            raise MapFormatError(
+                f"{d}: duplicate experiment name {m.name!r} in {seen[m.name]} and {m.path}"
+            )
+        seen[m.name] = m.path
+
+
+def _check_layers(d: Path, maps: list[Map]) -> None:
+    first = maps[0]
+    for m in maps[1:]:
+        if m.n_layers != first.n_layers:
+            raise MapFormatError(
+                f"{d}: mismatched layer counts: {first.path} has {first.n_layers}, "
+                f"{m.path} has {m.n_layers}"
+            )

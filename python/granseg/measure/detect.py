@@ -1,0 +1,338 @@
+"""Find every sphere in an image of the packed bed, centres to sub-pixel accuracy.
+
+Two stages. OpenCV's Hough circle transform, run at a scale where a sphere is
+about 28 px across and with radii bracketing ``particle_diameter_px``, proposes
+candidate circles generously. Each candidate is then refined on the full
+resolution image: along rays from the candidate centre the sphere's outline is
+where the brightness falls fastest outward (the rim darkens towards the dark
+gaps or a neighbour's rim; a glass sphere's dark outline behaves the same),
+searched between 0.6 and 1.25 radii so that specular highlights near the centre
+do not count. A robust circle fit through those outline points gives the
+centre. Duplicates and ghosts (circles spanning several spheres) are removed by
+keeping the best-fitting circle within 0.7 diameter.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+__all__ = ["detect_particles", "match_templates", "refine_circles", "ring_centre", "to_gray"]
+
+HOUGH_DIAMETER_PX = 28.0  # Hough runs at a scale where spheres are about this wide
+N_RAYS = 40
+
+
+def to_gray(image: np.ndarray) -> np.ndarray:
+    """Luminance of a BGR (or already grey) uint8 image, as float32 in [0, 255]."""
+    if image.ndim == 3:
+        image = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
+    return image.astype(np.float32)
+
+
+def detect_particles(image: np.ndarray, particle_diameter_px: float) -> np.ndarray:
+    """Centres and radii of the spheres in ``image``.
+
+    Parameters
+    ----------
+    image : (H, W, 3) BGR or (H, W) grey uint8 image (undistorted).
+    particle_diameter_px : expected sphere diameter [px].
+
+    Returns
+    -------
+    (m, 4) float array: x, y [px, pixel centres at integers], radius [px] and
+    a fit score (mean outward brightness drop at the outline, grey levels/px).
+    """
+    d = float(particle_diameter_px)
+    gray = to_gray(image)
+    candidates = _candidates(gray, d)
+    if candidates.size == 0:
+        return np.zeros((0, 4))
+    smooth = cv2.GaussianBlur(gray, (0, 0), max(0.8, d / 40))
+    circles = refine_circles(smooth, candidates, d)
+    seeds = _select(circles, d)
+    if len(seeds) < 3:
+        return seeds
+    return match_templates(smooth, image, seeds, d)
+
+
+def _candidates(gray: np.ndarray, d: float) -> np.ndarray:
+    """Candidate centres (x, y) in full-resolution pixels: Hough circles and bright blobs.
+
+    Both run on a locally contrast-normalised copy at reduced scale, so that
+    dark spheres (POM) are found as readily as bright ones.
+    """
+    scale = min(1.0, HOUGH_DIAMETER_PX / d)
+    small = cv2.resize(gray, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA) if scale < 1 else gray
+    norm = _local_contrast(small, d * scale)
+    found = np.concatenate([_hough(norm, d * scale), _blobs(norm, d * scale)])
+    # scaled pixel centres -> full-resolution pixel centres
+    return (found + 0.5) / scale - 0.5
+
+
+def _local_contrast(img: np.ndarray, d: float) -> np.ndarray:
+    """Brightness in units of the local spread over about two diameters, as uint8."""
+    mean = cv2.GaussianBlur(img, (0, 0), d)
+    var = cv2.GaussianBlur((img - mean) ** 2, (0, 0), d)
+    z = (img - mean) / np.sqrt(var + 4.0)
+    return np.clip(128 + 50 * z, 0, 255).astype(np.uint8)
+
+
+def _hough(norm: np.ndarray, d: float) -> np.ndarray:
+    r = 0.5 * d
+    smooth = cv2.GaussianBlur(norm, (0, 0), 1.0)
+    found = cv2.HoughCircles(
+        smooth, cv2.HOUGH_GRADIENT, dp=1, minDist=0.45 * d, param1=60, param2=max(6.0, 0.22 * 2 * np.pi * r),
+        minRadius=int(np.floor(0.75 * r)), maxRadius=int(np.ceil(1.2 * r)),
+    )
+    return np.zeros((0, 2)) if found is None else found.reshape(-1, 3)[:, :2].astype(float)
+
+
+def _blobs(norm: np.ndarray, d: float) -> np.ndarray:
+    """Local maxima of a difference of Gaussians tuned to sphere size."""
+    img = norm.astype(np.float32)
+    dog = cv2.GaussianBlur(img, (0, 0), 0.25 * d) - cv2.GaussianBlur(img, (0, 0), 0.6 * d)
+    size = max(3, int(0.5 * d) | 1)
+    peaks = (dog >= cv2.dilate(dog, np.ones((size, size), np.uint8))) & (dog > 0)
+    ys, xs = np.nonzero(peaks)
+    return np.column_stack([xs, ys]).astype(float)
+
+
+def refine_circles(smooth: np.ndarray, centres: np.ndarray, particle_diameter_px: float,
+                   iterations: int = 3) -> np.ndarray:
+    """Refine approximate centres by fitting circles to the spheres' outlines.
+
+    ``smooth`` is a float32 grey image (lightly blurred), ``centres`` (m, 2)
+    approximate x, y [px]. Returns (m, 5): x, y, radius [px], score (median
+    outward brightness drop at the outline, grey levels per px) and the share
+    of rays that agree with the fitted circle.
+    """
+    c = np.asarray(centres, dtype=float).copy()
+    result = np.zeros((c.shape[0], 5))
+    for _ in range(iterations):
+        result = _fit_outline(smooth, c, particle_diameter_px)
+        moved = np.hypot(*(result[:, :2] - c).T)
+        c = np.where((moved < 0.3 * particle_diameter_px)[:, None], result[:, :2], c)
+    return result
+
+
+def _fit_outline(smooth: np.ndarray, c: np.ndarray, d: float) -> np.ndarray:
+    radius = 0.5 * d
+    theta = np.linspace(0, 2 * np.pi, N_RAYS, endpoint=False)
+    cos, sin = np.cos(theta), np.sin(theta)
+    steps = np.arange(0.6 * radius, 1.25 * radius, 0.5)
+    px = c[:, 0, None, None] + steps[None, None, :] * cos[None, :, None]
+    py = c[:, 1, None, None] + steps[None, None, :] * sin[None, :, None]
+    m, k, s = px.shape
+    prof = cv2.remap(smooth, px.reshape(m * k, s).astype(np.float32),
+                     py.reshape(m * k, s).astype(np.float32), cv2.INTER_LINEAR,
+                     borderMode=cv2.BORDER_REPLICATE).reshape(m, k, s)
+    drop = (prof[:, :, :-2] - prof[:, :, 2:]) / 2.0  # outward brightness drop per 0.5 px
+    best = np.argmax(drop, axis=2)
+    peak = np.take_along_axis(drop, best[..., None], 2)[..., 0]
+    lo = np.take_along_axis(drop, np.clip(best - 1, 0, s - 3)[..., None], 2)[..., 0]
+    hi = np.take_along_axis(drop, np.clip(best + 1, 0, s - 3)[..., None], 2)[..., 0]
+    denom = lo - 2 * peak + hi
+    frac = np.where(np.abs(denom) > 1e-6, 0.5 * (lo - hi) / np.where(denom == 0, 1, denom), 0.0)
+    r_edge = steps[0] + 0.5 * (best + 1 + np.clip(frac, -0.5, 0.5))
+    ex = c[:, 0, None] + r_edge * cos
+    ey = c[:, 1, None] + r_edge * sin
+    return _robust_circles(ex, ey, np.clip(peak, 0, None) * 2.0)
+
+
+def _robust_circles(ex: np.ndarray, ey: np.ndarray, strength: np.ndarray) -> np.ndarray:
+    """Weighted algebraic circle fits (m at once), refitted without outlier rays."""
+    w = (strength > 0).astype(float) * np.sqrt(strength)
+    fit = _kasa(ex, ey, w)
+    for _ in range(2):
+        resid = np.abs(np.hypot(ex - fit[:, 0, None], ey - fit[:, 1, None]) - fit[:, 2, None])
+        scale = np.maximum(1.0, 2.5 * np.median(resid, axis=1, keepdims=True))
+        inlier = (resid < scale) & (strength > 0)
+        fit = _kasa(ex, ey, w * inlier)
+    share = inlier.mean(axis=1)
+    score = np.median(np.where(inlier, strength, 0.0), axis=1)
+    return np.column_stack([fit, score, share])
+
+
+def _kasa(ex: np.ndarray, ey: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """Least-squares circles x^2 + y^2 + a x + b y + c = 0; returns (m, 3): x, y, r."""
+    mx = (w * ex).sum(1) / np.maximum(w.sum(1), 1e-9)
+    my = (w * ey).sum(1) / np.maximum(w.sum(1), 1e-9)
+    u, v = ex - mx[:, None], ey - my[:, None]
+    a = np.stack([u, v, np.ones_like(u)], axis=2) * w[..., None]
+    b = -(u * u + v * v) * w
+    ata = np.einsum("mki,mkj->mij", a, a) + 1e-9 * np.eye(3)
+    atb = np.einsum("mki,mk->mi", a, b)
+    sol = np.linalg.solve(ata, atb[..., None])[..., 0]
+    cx, cy = -sol[:, 0] / 2, -sol[:, 1] / 2
+    r = np.sqrt(np.maximum(cx * cx + cy * cy - sol[:, 2], 0.0))
+    return np.column_stack([cx + mx, cy + my, r])
+
+
+def _select(circles: np.ndarray, d: float) -> np.ndarray:
+    """Drop implausible fits, then keep the best circle within 0.7 diameter."""
+    ok = (circles[:, 2] > 0.3 * d) & (circles[:, 2] < 0.7 * d) & (circles[:, 4] >= 0.5)
+    ok &= np.all(np.isfinite(circles), axis=1)
+    circles = circles[ok]
+    if circles.size == 0:
+        return np.zeros((0, 4))
+    quality = circles[:, 3] * circles[:, 4]
+    order = np.argsort(-quality)
+    kept: list[int] = []
+    for i in order:
+        if kept:
+            dist = np.hypot(*(circles[kept, :2] - circles[i, :2]).T)
+            if dist.min() < 0.7 * d:
+                continue
+        kept.append(i)
+    out = circles[kept]
+    weak = out[:, 3] * out[:, 4] < 0.25 * np.median(out[:, 3] * out[:, 4])
+    return out[~weak][:, :4]
+
+
+# --------------------------------------------------------------------------- templates
+
+
+def match_templates(smooth: np.ndarray, image: np.ndarray, seeds: np.ndarray, d: float,
+                    rounds: int = 1) -> np.ndarray:
+    """Find spheres as matches of their own mean appearance, learned from ``seeds``.
+
+    Spheres of one material under fixed lamps look alike: the mean of many
+    colour patches shows one sphere against averaged surroundings, and a
+    circle of about the nominal diameter fitted to its outline fixes where
+    the template's centre is. The grey image is correlated with the mean
+    appearance of each of two appearance groups (told apart by colour: the
+    two materials); each local correlation peak is a sphere, placed to
+    sub-pixel accuracy. ``smooth`` is the blurred grey image (float32),
+    ``image`` the BGR image.
+    Returns (m, 4): x, y, radius [px], correlation in [-1, 1].
+    """
+    half = int(np.ceil(0.75 * d))
+    colour = smooth[..., None]
+    centres = seeds[:, :2]
+    found = seeds
+    for _ in range(rounds):
+        templates = _templates(colour, image, centres, d, half)
+        found = _correlation_peaks(colour, templates, d, half)
+        if len(found) < 3:
+            return found
+        centres = found[:, :2]
+    return found
+
+
+def _templates(colour, image, centres, d, half) -> list[tuple[np.ndarray, np.ndarray, float]]:
+    """Mean colour patch per appearance group, with the offset of its centre and its radius."""
+    size = 2 * half + 1
+    patches = np.stack([cv2.getRectSubPix(colour, (size, size), (float(x), float(y)))
+                        for x, y in centres])
+    if patches.ndim == 3:
+        patches = patches[..., None]
+    groups = _appearance_groups(image, centres, d)
+    out = []
+    for g in np.unique(groups):
+        mean = patches[groups == g].mean(axis=0).astype(np.float32)
+        gray = mean.mean(axis=2) if mean.shape[2] > 1 else mean[..., 0]
+        x, y, r = ring_centre(np.ascontiguousarray(gray, dtype=np.float32), d)
+        out.append((mean, np.array([x - half, y - half]), r))
+    return out
+
+
+def ring_centre(patch: np.ndarray, d: float) -> tuple[float, float, float]:
+    """Centre (x, y) and radius [px] of the sphere in the middle of ``patch``.
+
+    The circle of radius within 3 % of d/2 and centre within d/4 of the
+    middle across which the brightness falls most, on average, going outward.
+    Works on a mean appearance, where the outline is clean.
+    """
+    h, w = patch.shape
+    mid = np.array([(w - 1) / 2, (h - 1) / 2])
+    theta = np.linspace(0, 2 * np.pi, 72, endpoint=False)
+    ray = np.stack([np.cos(theta), np.sin(theta)], axis=1)
+    radii = 0.5 * d * np.linspace(0.97, 1.03, 3)
+    best = (-np.inf, mid[0], mid[1], 0.5 * d)
+    for step, span in ((1.0, 0.2 * d), (0.2, 1.2)):
+        offs = np.arange(-span, span + 1e-9, step)
+        ox, oy = np.meshgrid(offs + best[1] - mid[0], offs + best[2] - mid[1])
+        cx, cy = (mid[0] + ox).ravel(), (mid[1] + oy).ravel()
+        score = _ring_scores(patch, cx, cy, radii, ray)
+        i, j = np.unravel_index(np.argmax(score), score.shape)
+        best = (score[i, j], cx[i], cy[i], radii[j])
+    return float(best[1]), float(best[2]), float(best[3])
+
+
+def _ring_scores(patch, cx, cy, radii, ray) -> np.ndarray:
+    """Mean outward brightness drop on circles (centre i, radius j): (n_centres, n_radii)."""
+    pts_in = (radii[None, :, None] - 0.75)[..., None] * ray[None, None]
+    pts_out = (radii[None, :, None] + 0.75)[..., None] * ray[None, None]
+    base = np.stack([cx, cy], axis=1)[:, None, None, :]
+    xin, xout = base + pts_in, base + pts_out
+    n, m, k, _ = xin.shape
+    flat = np.concatenate([xin, xout], axis=2).reshape(n * m, 2 * k, 2).astype(np.float32)
+    vals = cv2.remap(patch, flat[..., 0], flat[..., 1], cv2.INTER_LINEAR,
+                     borderMode=cv2.BORDER_REPLICATE).reshape(n, m, 2 * k)
+    return (vals[..., :k] - vals[..., k:]).mean(axis=2)
+
+
+def _appearance_groups(image: np.ndarray, centres: np.ndarray, d: float) -> np.ndarray:
+    """Split spheres into two groups by the mean colour of their middle (2-means)."""
+    img = image if image.ndim == 3 else image[..., None]
+    h, w = img.shape[:2]
+    xi = np.clip(np.rint(centres[:, 0]).astype(int), 0, w - 1)
+    yi = np.clip(np.rint(centres[:, 1]).astype(int), 0, h - 1)
+    k = max(1, int(0.25 * d))
+    blurred = cv2.blur(img.astype(np.float32), (2 * k + 1, 2 * k + 1))
+    colour = blurred.reshape(h, w, -1)[yi, xi]
+    if len(colour) < 4 or np.ptp(colour, axis=0).max() < 1e-3:
+        return np.zeros(len(colour), dtype=int)
+    crit = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_MAX_ITER, 30, 0.1)
+    _, labels, _ = cv2.kmeans(colour.astype(np.float32), 2, None, crit, 3, cv2.KMEANS_PP_CENTERS)
+    labels = labels.ravel()
+    if min(np.bincount(labels, minlength=2)) < 3:
+        return np.zeros(len(colour), dtype=int)
+    return labels
+
+
+def _correlation_peaks(colour, templates, d, half) -> np.ndarray:
+    """Local maxima of the best template correlation, refined to sub-pixel."""
+    pad = half + 2
+    padded = cv2.copyMakeBorder(colour[..., 0], pad, pad, pad, pad, cv2.BORDER_REPLICATE)
+    maps = [cv2.matchTemplate(padded, t[..., 0], cv2.TM_CCOEFF_NORMED) for t, _, _ in templates]
+    best = np.argmax(np.stack(maps), axis=0)
+    score = np.max(np.stack(maps), axis=0)
+    size = max(3, int(0.6 * d) | 1)
+    peak = (score >= cv2.dilate(score, np.ones((size, size), np.uint8))) & (score > 0.2)
+    ys, xs = np.nonzero(peak)
+    inner = (xs > 0) & (ys > 0) & (xs < score.shape[1] - 1) & (ys < score.shape[0] - 1)
+    ys, xs = ys[inner], xs[inner]
+    fx = _parabola(score[ys, xs - 1], score[ys, xs], score[ys, xs + 1])
+    fy = _parabola(score[ys - 1, xs], score[ys, xs], score[ys + 1, xs])
+    group = best[ys, xs]
+    offset = np.array([t[1] for t in templates])[group]
+    radius = np.array([t[2] for t in templates])[group]
+    # top-left of the template in padded coordinates -> centre in image pixels
+    x = xs + fx + half - pad + offset[:, 0]
+    y = ys + fy + half - pad + offset[:, 1]
+    found = np.column_stack([x, y, radius, score[ys, xs], group])
+    return _keep_spheres(found, d)
+
+
+def _parabola(a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
+    denom = a - 2 * b + c
+    safe = np.where(np.abs(denom) > 1e-9, denom, -1.0)
+    return np.clip(0.5 * (a - c) / safe, -0.5, 0.5)
+
+
+def _keep_spheres(found: np.ndarray, d: float) -> np.ndarray:
+    """Best peak within 0.7 diameter; drop peaks far weaker than a typical sphere."""
+    order = np.argsort(-found[:, 3])
+    kept: list[int] = []
+    for i in order:
+        if kept and np.hypot(*(found[kept, :2] - found[i, :2]).T).min() < 0.7 * d:
+            continue
+        kept.append(i)
+    out = found[kept]
+    keep = np.zeros(len(out), dtype=bool)
+    for g in np.unique(out[:, 4]):
+        mine = out[:, 4] == g
+        keep |= mine & (out[:, 3] > 0.5 * np.median(out[mine, 3]))
+    return out[keep, :4]

@@ -1,0 +1,130 @@
+"""Read and check ``experiment.json`` (DATA.md): metadata, camera model, window."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+__all__ = ["Experiment", "load_experiment"]
+
+TEXT_FIELDS = ("name", "heavy", "light")
+COLOUR_RANGES = ("heavy_hsv", "light_hsv", "heavy_lab", "light_lab")
+
+
+@dataclass(frozen=True)
+class Experiment:
+    """One experiment's description: densities [kg/m^3], masses [kg], fps [1/s],
+    OpenCV camera model, investigation window and sphere diameter [undistorted px],
+    and optional colour ranges (``heavy_hsv`` etc.: [[lo x3], [hi x3]], OpenCV
+    8-bit HSV or LAB) that override the learned colour classes."""
+
+    path: Path
+    name: str
+    heavy: str
+    light: str
+    rho_h: float
+    rho_l: float
+    c0: float
+    M_g: float
+    M_w: float
+    fps: float | None
+    camera_matrix: np.ndarray
+    dist_coeffs: np.ndarray
+    window: tuple[float, float, float, float]
+    particle_diameter_px: float
+    t0: float = 0.0
+    colour_ranges: dict[str, np.ndarray] = field(default_factory=dict)
+
+    def metadata(self) -> dict[str, Any]:
+        """The map metadata fields (DATA.md) of this experiment."""
+        return dict(name=self.name, heavy=self.heavy, light=self.light, rho_h=self.rho_h,
+                    rho_l=self.rho_l, c0=self.c0, M_g=self.M_g, M_w=self.M_w)
+
+
+def load_experiment(path: str | os.PathLike) -> Experiment:
+    """Read ``experiment.json`` at ``path``; ValueError names the file and the bad field."""
+    p = Path(path)
+    if not p.is_file():
+        raise FileNotFoundError(f"{p}: experiment.json not found (it must sit beside the frames or video)")
+    try:
+        raw = json.loads(p.read_text(encoding="utf-8"))
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise ValueError(f"{p}: not valid JSON ({exc})") from None
+    if not isinstance(raw, dict):
+        raise ValueError(f"{p}: expected a JSON object with the experiment's fields")
+    return _parse(p, raw)
+
+
+def _parse(p: Path, raw: dict[str, Any]) -> Experiment:
+    get = _Fields(p, raw)
+    rho_h, rho_l = get.number("rho_h", lo=0), get.number("rho_l", lo=0)
+    if rho_h < rho_l:
+        raise ValueError(f"{p}: field 'rho_h': must be >= rho_l ({rho_h} < {rho_l})")
+    k = get.array("camera_matrix", (3, 3))
+    if k[0, 0] <= 0 or k[1, 1] <= 0 or not np.allclose(k[2], [0, 0, 1]):
+        raise ValueError(f"{p}: field 'camera_matrix': expected [[fx, 0, cx], [0, fy, cy], [0, 0, 1]] with fx, fy > 0")
+    dist = get.array("dist_coeffs", None)
+    if dist.size not in (4, 5, 8, 12, 14):
+        raise ValueError(f"{p}: field 'dist_coeffs': expected 4, 5, 8, 12 or 14 numbers, got {dist.size}")
+    window = get.array("window", (4,))
+    if not (window[0] < window[2] and window[1] < window[3]):
+        raise ValueError(f"{p}: field 'window': expected [x0, y0, x1, y1] with x0 < x1 and y0 < y1")
+    return Experiment(
+        path=p, **{f: get.text(f) for f in TEXT_FIELDS}, rho_h=rho_h, rho_l=rho_l,
+        c0=get.number("c0", lo=0, hi=1), M_g=get.number("M_g", lo=0), M_w=get.number("M_w", lo=0),
+        fps=get.number("fps", lo=0, required=False), camera_matrix=k, dist_coeffs=dist.ravel(),
+        window=tuple(float(v) for v in window),
+        particle_diameter_px=get.number("particle_diameter_px", lo=4),
+        t0=get.number("t0", required=False) or 0.0,
+        colour_ranges={f: get.array(f, (2, 3)) for f in COLOUR_RANGES if f in raw},
+    )
+
+
+class _Fields:
+    """Typed access to the JSON fields, with messages naming file and field."""
+
+    def __init__(self, path: Path, raw: dict[str, Any]):
+        self.path, self.raw = path, raw
+
+    def _get(self, key: str, required: bool = True) -> Any:
+        if key not in self.raw or self.raw[key] is None:
+            if required:
+                raise ValueError(f"{self.path}: missing field '{key}'")
+            return None
+        return self.raw[key]
+
+    def text(self, key: str) -> str:
+        value = self._get(key)
+        if not isinstance(value, str) or not value.strip():
+            raise ValueError(f"{self.path}: field '{key}': expected a non-empty string, got {value!r}")
+        return value
+
+    def number(self, key: str, lo: float | None = None, hi: float | None = None,
+               required: bool = True) -> float | None:
+        value = self._get(key, required)
+        if value is None:
+            return None
+        if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+            raise ValueError(f"{self.path}: field '{key}': expected a finite number, got {value!r}")
+        if (lo is not None and value <= lo) or (hi is not None and value >= hi):
+            raise ValueError(f"{self.path}: field '{key}': {value} outside ({lo}, {hi if hi is not None else 'inf'})")
+        return float(value)
+
+    def array(self, key: str, shape: tuple[int, ...] | None) -> np.ndarray:
+        value = self._get(key)
+        try:
+            a = np.asarray(value, dtype=float)
+        except (TypeError, ValueError):
+            raise ValueError(f"{self.path}: field '{key}': expected numbers, got {value!r}") from None
+        if (shape is not None and a.shape != shape) or (shape is None and a.ndim != 1):
+            want = "a list of numbers" if shape is None else f"shape {shape}"
+            raise ValueError(f"{self.path}: field '{key}': expected {want}, got shape {a.shape}")
+        if not np.all(np.isfinite(a)):
+            raise ValueError(f"{self.path}: field '{key}': values must be finite")
+        return a

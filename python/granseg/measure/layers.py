@@ -1,0 +1,32 @@
+"""Bin sphere centres into the window's horizontal layers (layer 0 at the bottom)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["N_LAYERS", "in_window", "layer_index", "layer_counts"]
+
+N_LAYERS = 15
+
+
+def in_window(x: np.ndarray, y: np.ndarray, window: tuple[float, float, float, float]) -> np.ndarray:
+    """True where the centre (x, y) [undistorted px] lies in window = (x0, y0, x1, y1), half-open."""
+    x0, y0, x1, y1 = window
+    return (x >= x0) & (x < x1) & (y >= y0) & (y < y1)
+
+
+def layer_index(y: np.ndarray, window: tuple[float, float, float, float], n_layers: int = N_LAYERS) -> np.ndarray:
+    """Layer of each centre height y [px]: 0 for the bottom layer (next to y1), n_layers - 1 under the lid."""
+    _, y0, _, y1 = window
+    j = np.floor((y1 - np.asarray(y, dtype=float)) / ((y1 - y0) / n_layers)).astype(int)
+    return np.clip(j, 0, n_layers - 1)
+
+
+def layer_counts(x: np.ndarray, y: np.ndarray, heavy: np.ndarray,
+                 window: tuple[float, float, float, float], n_layers: int = N_LAYERS) -> tuple[np.ndarray, np.ndarray]:
+    """Spheres and heavy spheres whose centre is in each layer: two (n_layers,) int arrays."""
+    inside = in_window(x, y, window)
+    j = layer_index(y[inside], window, n_layers)
+    n = np.bincount(j, minlength=n_layers)
+    nh = np.bincount(j[np.asarray(heavy, dtype=bool)[inside]], minlength=n_layers)
+    return n, nh

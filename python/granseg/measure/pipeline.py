@@ -1,0 +1,305 @@
+"""Frames or video -> concentration map: ``granseg.analyze``."""
+
+from __future__ import annotations
+
+import logging
+import os
+import warnings
+from collections import deque
+from concurrent.futures import Future, ThreadPoolExecutor
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from tqdm import tqdm
+
+from granseg.measure.camera import Undistorter
+from granseg.measure.classify import classify_by_ranges, colour_features, learn_classes
+from granseg.measure.detect import detect_particles
+from granseg.measure.experiment import Experiment, load_experiment
+from granseg.measure.layers import N_LAYERS, in_window, layer_counts
+from granseg.measure.sources import BadFrame, FrameDirectory, VideoFrames, open_frames
+
+__all__ = ["Analysis", "BadFrameWarning", "FrameSpheres", "analyze"]
+
+log = logging.getLogger(__name__)
+
+
+class BadFrameWarning(UserWarning):
+    """A frame could not be analysed; its row of the map is NaN."""
+
+
+@dataclass
+class FrameSpheres:
+    """Spheres found in one frame: centres x, y and radius r [undistorted px], colour features."""
+
+    x: np.ndarray
+    y: np.ndarray
+    r: np.ndarray
+    features: np.ndarray
+    heavy: np.ndarray | None = None
+
+
+@dataclass
+class Analysis:
+    """Result of :func:`analyze`: the map arrays and what happened on the way.
+
+    c, c_raw: (n_t, 15) heavy share (smoothed / raw; NaN = no reading);
+    n, n_heavy: (n_t, 15) counts; t [s]; z [m]; smoothing_frames;
+    spheres: per frame, FrameSpheres or None for a bad frame;
+    bad_frames: list of (frame name, problem); out: the map file written (or None).
+    """
+
+    c: np.ndarray
+    c_raw: np.ndarray
+    n: np.ndarray
+    n_heavy: np.ndarray
+    t: np.ndarray
+    z: np.ndarray
+    smoothing_frames: int
+    experiment: Experiment
+    frame_names: list[str]
+    spheres: list[FrameSpheres | None]
+    bad_frames: list[tuple[str, str]] = field(default_factory=list)
+    out: Path | None = None
+    previews: list[Path] = field(default_factory=list)
+
+
+def analyze(
+    path: str | os.PathLike,
+    *,
+    out: str | os.PathLike | None = None,
+    smooth: int = 5,
+    preview: str | os.PathLike | None = None,
+    preview_count: int = 6,
+    force: bool = False,
+    save: bool = True,
+    workers: int | None = None,
+    progress: bool = True,
+) -> Analysis:
+    """Measure the heavy-concentration map of an experiment from its frames.
+
+    Parameters
+    ----------
+    path : a directory of frames (PNG/JPEG, name order = time order) holding
+        ``experiment.json``, or a video file with ``experiment.json`` beside it.
+    out : map file to write (DATA.md ``.npz``); default ``map.npz`` beside
+        ``experiment.json``.
+    smooth : width N [frames] of the centred moving average giving ``c`` from
+        ``c_raw`` (odd; 1 = none); recorded as ``smoothing_frames``.
+    preview : directory for annotated preview PNGs of ``preview_count`` frames
+        spread over the run (first and last included).
+    force : replace existing output files.
+    save : write the map (False: only return it).
+    workers : threads decoding and analysing frames (default: all cores).
+    progress : show a progress bar.
+
+    Returns an :class:`Analysis`. A frame that cannot be read or shows no
+    spheres becomes a NaN row with a :class:`BadFrameWarning`; bad input
+    files or fields raise ValueError / FileNotFoundError naming them.
+    """
+    from granseg._io import check_writable
+
+    if isinstance(smooth, bool) or not isinstance(smooth, int | np.integer) or smooth < 1 or smooth % 2 == 0:
+        raise ValueError(f"smooth: expected an odd number of frames >= 1 (1 = none), got {smooth!r}")
+    source, exp_path = open_frames(path)
+    exp = load_experiment(exp_path)
+    out_path = Path(out) if out is not None else exp_path.parent / "map.npz"
+    if save:
+        check_writable(out_path, force)
+    fps = _frame_rate(exp, source)
+    keep = _preview_indices(len(source), preview_count) if preview is not None else set()
+    spheres, crops, bad, names = _detect_all(source, exp, workers, progress, keep)
+    _classify(spheres, exp)
+    result = _assemble(spheres, exp, fps, smooth, names, bad)
+    if save:
+        result.out = _save(result, out_path, force, fps)
+    if preview is not None:
+        from granseg.measure.preview import write_previews
+
+        result.previews = write_previews(Path(preview), result, crops, force)
+    return result
+
+
+def _frame_rate(exp: Experiment, source: FrameDirectory | VideoFrames) -> float:
+    fps = exp.fps if exp.fps is not None else source.fps
+    if not fps or fps <= 0:
+        raise ValueError(f"{exp.path}: missing field 'fps' (frames per second)")
+    return float(fps)
+
+
+def _preview_indices(n: int, count: int) -> set[int]:
+    return set(np.unique(np.rint(np.linspace(0, max(n - 1, 0), max(count, 1))).astype(int)).tolist())
+
+
+# --------------------------------------------------------------------------- pass 1: spheres
+
+
+class _FrameWorker:
+    """Undistort, crop, detect and describe the spheres of one frame."""
+
+    def __init__(self, exp: Experiment, image_size: tuple[int, int]):
+        d = exp.particle_diameter_px
+        x0, y0, x1, y1 = exp.window
+        m = int(np.ceil(d))
+        self.crop = (int(np.floor(x0)) - m, int(np.floor(y0)) - m, int(np.ceil(x1)) + m, int(np.ceil(y1)) + m)
+        self.exp, self.size = exp, image_size
+        self.undistort = Undistorter(exp.camera_matrix, exp.dist_coeffs, image_size, self.crop)
+        if not self.undistort.inside_image(exp.window):
+            raise ValueError(f"{exp.path}: field 'window': {list(exp.window)} is outside the image "
+                             f"({image_size[0]} x {image_size[1]} px) once undistorted")
+
+    def __call__(self, name: str, image: np.ndarray) -> tuple[FrameSpheres, np.ndarray]:
+        if image.ndim != 3 or (image.shape[1], image.shape[0]) != self.size:
+            raise BadFrame(f"{name}: size {image.shape[1]} x {image.shape[0]} differs from the first frame's "
+                           f"{self.size[0]} x {self.size[1]}")
+        crop = self.undistort(image)
+        d = self.exp.particle_diameter_px
+        found = detect_particles(crop, d)
+        feats = colour_features(crop, found[:, :2], d)
+        x, y = found[:, 0] + self.crop[0], found[:, 1] + self.crop[1]
+        inside = in_window(x, y, self.exp.window)
+        if not inside.any():
+            raise BadFrame(f"{name}: no spheres detected in the window")
+        return FrameSpheres(x[inside], y[inside], found[inside, 2], feats[inside]), crop
+
+
+def _detect_all(source, exp, workers, progress, keep):
+    n_workers = max(1, workers or os.cpu_count() or 1)
+    first = _first_image(source)
+    worker = _FrameWorker(exp, (first.shape[1], first.shape[0]))
+    results: dict[int, Any] = {}
+    crops: dict[int, np.ndarray] = {}
+    bar = tqdm(total=len(source), desc="analyze", unit="frame", disable=not progress)
+    pending: deque[tuple[int, Future]] = deque()
+    with ThreadPoolExecutor(n_workers) as pool:
+        for i, image in source.frames():
+            pending.append((i, pool.submit(_one_frame, source, worker, i, image)))
+            while len(pending) > 2 * n_workers:
+                _collect(pending.popleft(), results, crops, keep, bar)
+        while pending:
+            _collect(pending.popleft(), results, crops, keep, bar)
+    bar.close()
+    names = list(source.names)
+    _check_video_length(source, names, results)
+    spheres, bad = [], []
+    for i, name in enumerate(names):
+        got = results.get(i)
+        if isinstance(got, FrameSpheres):
+            spheres.append(got)
+        else:
+            problem = str(got) if got is not None else f"{name}: frame missing from the stream"
+            spheres.append(None)
+            bad.append((name, problem))
+            warnings.warn(f"{problem}; its map row is NaN", BadFrameWarning, stacklevel=3)
+    if not any(s is not None for s in spheres):
+        raise ValueError(f"{exp.path.parent}: no usable frame ({bad[0][1]})")
+    return spheres, crops, bad, names
+
+
+def _first_image(source) -> np.ndarray:
+    """The first decodable frame (to size the undistortion tables)."""
+    if isinstance(source, VideoFrames):
+        for _, img in source.frames():
+            return img
+        raise ValueError(f"{source.path}: video holds no readable frame (empty or truncated)")
+    problems = []
+    for i in range(len(source)):
+        try:
+            return source.read(i)
+        except BadFrame as exc:
+            problems.append(str(exc))
+    raise ValueError(f"{source.directory}: no readable frame ({problems[0]})")
+
+
+def _one_frame(source, worker, i, image):
+    name = source.names[i] if i < len(source.names) else f"frame {i}"
+    try:
+        img = source.read(i) if image is None else image
+        return worker(name, img)
+    except BadFrame as exc:
+        return exc
+
+
+def _collect(item, results, crops, keep, bar) -> None:
+    i, fut = item
+    got = fut.result()
+    if isinstance(got, BadFrame):
+        results[i] = got
+    else:
+        results[i] = got[0]
+        if i in keep:
+            crops[i] = got[1]
+    bar.update(1)
+
+
+def _check_video_length(source, names, results) -> None:
+    if isinstance(source, VideoFrames) and source.decoded is not None and source.decoded < source.expected:
+        log.warning("%s: stream ends after %d of %d frames (truncated?)",
+                    source.path, source.decoded, source.expected)
+        del names[source.decoded:]
+        names.extend(f"{source.path.name}#{i}" for i in range(source.decoded, source.expected))
+
+
+# --------------------------------------------------------------------------- pass 2: classes
+
+
+def _classify(spheres: list[FrameSpheres | None], exp: Experiment) -> None:
+    good = [s for s in spheres if s is not None]
+    if exp.colour_ranges:
+        for s in good:
+            s.heavy = classify_by_ranges(s.features, exp.colour_ranges)
+        return
+    pooled = np.concatenate([s.features for s in good])
+    rng = np.random.default_rng(0)
+    if len(pooled) > 20000:
+        pooled = pooled[rng.choice(len(pooled), 20000, replace=False)]
+    first = good[0]
+    try:
+        classes = learn_classes(pooled, first.features, -first.y)
+    except ValueError as exc:
+        raise ValueError(f"{exp.path.parent}: {exc}") from None
+    for s in good:
+        s.heavy = classes.is_heavy(s.features)
+
+
+# --------------------------------------------------------------------------- the map
+
+
+def _assemble(spheres, exp, fps, smooth, names, bad) -> Analysis:
+    from granseg.maps import moving_average
+
+    n_t = len(spheres)
+    n = np.zeros((n_t, N_LAYERS), dtype=np.int64)
+    nh = np.zeros((n_t, N_LAYERS), dtype=np.int64)
+    for i, s in enumerate(spheres):
+        if s is not None:
+            n[i], nh[i] = layer_counts(s.x, s.y, s.heavy, exp.window)
+    missing = np.array([s is None for s in spheres])
+    with np.errstate(invalid="ignore", divide="ignore"):
+        c_raw = np.where(n > 0, nh / np.maximum(n, 1), np.nan)
+    c_raw[missing] = np.nan
+    c = moving_average(c_raw, smooth, axis=0)
+    c[~np.isfinite(c_raw)] = np.nan
+    t = exp.t0 + np.arange(n_t) / fps
+    z = (np.arange(N_LAYERS) + 0.5) * _particle_diameter_m()
+    return Analysis(c, c_raw, n, nh, t, z, smooth, exp, names, spheres, bad)
+
+
+def _particle_diameter_m() -> float:
+    """D_p [m] from the model's parameters (MODEL.md), the one source of truth."""
+    try:
+        import granseg
+
+        return float(granseg.defaults()["D_p"])
+    except (ImportError, AttributeError, KeyError):
+        return 6.0e-3  # MODEL.md D_p, used only when the compiled model is not installed
+
+
+def _save(result: Analysis, out: Path, force: bool, fps: float) -> Path:
+    from granseg.maps import save_map
+
+    return save_map(out, c=result.c, t=result.t, z=result.z, **result.experiment.metadata(),
+                    n=result.n, n_heavy=result.n_heavy, c_raw=result.c_raw, fps=fps,
+                    smoothing_frames=result.smoothing_frames, force=force)

@@ -1,0 +1,83 @@
+"""Annotated preview images: what a researcher checks before trusting a map."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+from granseg.measure.layers import N_LAYERS
+
+__all__ = ["draw_preview", "write_previews"]
+
+HEAVY_BGR = (40, 110, 255)  # orange
+LIGHT_BGR = (255, 200, 40)  # sky blue
+PANEL_PX = 230
+
+
+def write_previews(directory: Path, result: Any, crops: dict[int, np.ndarray], force: bool) -> list[Path]:
+    """Write ``preview_<frame>.png`` for each kept frame into ``directory`` (created if needed)."""
+    from granseg._io import atomic_path
+
+    directory.mkdir(parents=True, exist_ok=True)
+    written = []
+    for i in sorted(crops):
+        spheres = result.spheres[i]
+        if spheres is None:
+            continue
+        name = Path(result.frame_names[i]).stem.replace("#", "_")
+        img = draw_preview(crops[i], result, i)
+        path = directory / f"preview_{name}.png"
+        with atomic_path(path, force=force) as tmp:
+            if not cv2.imwrite(str(tmp), img):
+                raise OSError(f"{path}: could not write preview image")
+        written.append(path)
+    return written
+
+
+def draw_preview(crop: np.ndarray, result: Any, i: int) -> np.ndarray:
+    """The undistorted crop of frame ``i`` with spheres circled by class, layer lines and counts."""
+    exp = result.experiment
+    ox, oy = _crop_origin(exp)
+    scale = max(1.0, 700.0 / crop.shape[0])
+    img = cv2.resize(crop, None, fx=scale, fy=scale, interpolation=cv2.INTER_LINEAR)
+    img = (img * 0.85).astype(np.uint8)
+    s = result.spheres[i]
+    to_px = lambda x, y: (int(round((x - ox + 0.5) * scale - 0.5)), int(round((y - oy + 0.5) * scale - 0.5)))  # noqa: E731
+    x0, y0, x1, y1 = exp.window
+    for j in range(N_LAYERS + 1):
+        yy = y1 - j * (y1 - y0) / N_LAYERS
+        cv2.line(img, to_px(x0, yy), to_px(x1, yy), (230, 230, 230), 1, cv2.LINE_AA)
+    cv2.rectangle(img, to_px(x0, y0), to_px(x1, y1), (255, 255, 255), 2, cv2.LINE_AA)
+    for x, y, r, h in zip(s.x, s.y, s.r, s.heavy, strict=True):
+        colour = HEAVY_BGR if h else LIGHT_BGR
+        cv2.circle(img, to_px(x, y), int(round(r * scale * 0.92)), colour, 2, cv2.LINE_AA)
+        cv2.circle(img, to_px(x, y), 2, colour, -1, cv2.LINE_AA)
+    return np.hstack([img, _panel(img.shape[0], result, i, to_px(0, y0)[1], to_px(0, y1)[1])])
+
+
+def _crop_origin(exp) -> tuple[int, int]:
+    m = int(np.ceil(exp.particle_diameter_px))
+    return int(np.floor(exp.window[0])) - m, int(np.floor(exp.window[1])) - m
+
+
+def _panel(height: int, result: Any, i: int, top: int, bottom: int) -> np.ndarray:
+    """Side panel: per-layer counts n, heavy n_h and c_raw, aligned with the layers."""
+    panel = np.full((height, PANEL_PX, 3), 250, np.uint8)
+    font = cv2.FONT_HERSHEY_SIMPLEX
+    text = lambda s, y, c=(30, 30, 30), k=0.45: cv2.putText(panel, s, (8, y), font, k, c, 1, cv2.LINE_AA)  # noqa: E731
+    name = result.frame_names[i]
+    text(f"{name}", 18, k=0.45)
+    text(f"t = {result.t[i]:.1f} s   n = {int(result.n[i].sum())}", 38)
+    cv2.putText(panel, "heavy", (8, 58), font, 0.45, HEAVY_BGR, 2, cv2.LINE_AA)
+    cv2.putText(panel, "light", (70, 58), font, 0.45, LIGHT_BGR, 2, cv2.LINE_AA)
+    text(f"{result.experiment.heavy} / {result.experiment.light}", 78, k=0.4)
+    step = (bottom - top) / N_LAYERS
+    for j in range(N_LAYERS):
+        y = int(bottom - (j + 0.5) * step + 5)
+        n, nh, c = result.n[i, j], result.n_heavy[i, j], result.c_raw[i, j]
+        share = "  -  " if not np.isfinite(c) else f"{c:4.2f}"
+        text(f"L{j:<2d} n={n:<3d} h={nh:<3d} c={share}", y, k=0.42)
+    return panel

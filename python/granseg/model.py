@@ -1,0 +1,410 @@
+"""The segregation-diffusion model: one run, the steady state, sweeps.
+
+Thin, validating wrappers over the Rust core (``granseg._core``). Every model
+parameter of MODEL.md is a keyword with its default from :func:`defaults`
+(SI units: densities kg/m^3, lengths m, speeds m/s, times s, loads kg).
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from granseg import _core
+from granseg.errors import SolverError
+
+__all__ = [
+    "MATERIALS",
+    "PARAMETERS",
+    "Solution",
+    "SweepResult",
+    "defaults",
+    "derived",
+    "simulate",
+    "steady_state",
+    "sweep",
+    "velocity_profile",
+]
+
+#: Material densities of MODEL.md, kg/m^3 (from the core, never copied).
+MATERIALS: dict[str, float] = dict(_core.materials())
+_DEFAULTS: dict[str, float] = dict(_core.defaults())
+#: Names of every model parameter, in MODEL.md's notation.
+PARAMETERS: tuple[str, ...] = tuple(sorted(_DEFAULTS))
+RTOL, ATOL = _core.default_tolerances()
+N_CELLS = 180
+N_LAYERS = 15
+
+
+def defaults() -> dict[str, float]:
+    """Default value of every model parameter (MODEL.md), SI units."""
+    return dict(_DEFAULTS)
+
+
+def _params(overrides: Mapping[str, Any], where: str = "") -> dict[str, float]:
+    """Defaults updated with ``overrides``, checked by name, type and range."""
+    out = dict(_DEFAULTS)
+    for name, value in overrides.items():
+        if name not in _DEFAULTS:
+            raise ValueError(
+                f"{where}unknown model parameter {name!r}; known: {', '.join(PARAMETERS)}"
+            )
+        try:
+            out[name] = float(value)
+        except (TypeError, ValueError):
+            raise ValueError(f"{where}parameter {name} = {value!r} is not a number") from None
+    try:
+        _core.validate(out)
+    except ValueError as exc:
+        raise ValueError(f"{where}{exc}") from None
+    return out
+
+
+def _times(t: Any, name: str = "t") -> np.ndarray:
+    try:
+        arr = np.ascontiguousarray(t, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be an array of times in seconds") from None
+    if arr.ndim != 1 or arr.size == 0:
+        raise ValueError(f"{name} must be a non-empty 1-D array of times in seconds, got shape {arr.shape}")
+    if not np.all(np.isfinite(arr)) or np.any(arr < 0):
+        raise ValueError(f"{name} must hold finite times >= 0 s")
+    if np.any(np.diff(arr) <= 0):
+        raise ValueError(f"{name} is not strictly increasing")
+    return arr
+
+
+def _solver_options(n_cells: Any, rtol: float | None, atol: float | None) -> tuple[int, float, float]:
+    if isinstance(n_cells, bool) or not isinstance(n_cells, int | np.integer):
+        raise ValueError(f"n_cells = {n_cells!r} must be an integer >= 15")
+    if n_cells < 15:
+        raise ValueError(f"n_cells = {n_cells} is out of range: must be >= 15 (one cell per layer at least)")
+    rtol = RTOL if rtol is None else float(rtol)
+    atol = ATOL if atol is None else float(atol)
+    for name, v in (("rtol", rtol), ("atol", atol)):
+        if not (math.isfinite(v) and 0 < v < 1):
+            raise ValueError(f"{name} = {v} is out of range: must be in (0, 1)")
+    return int(n_cells), rtol, atol
+
+
+def _call(fn, *args, **kwargs):
+    """Call the core, re-raising its numerical failures as SolverError."""
+    try:
+        return fn(*args, **kwargs)
+    except _core.SolverError as exc:
+        raise SolverError(str(exc)) from None
+
+
+@dataclass(frozen=True)
+class Solution:
+    """One model run.
+
+    Attributes
+    ----------
+    t : (n_t,) output times, s
+    z : (n_cells,) cell centres, m above the bottom wall
+    c : (n_t, n_cells) heavy share of the solids (cell averages), in [0, 1]
+    params : every model parameter used (SI units)
+    stats : solver counters (steps, rejected, newton_iters, rhs_evals, ...)
+    """
+
+    t: np.ndarray
+    z: np.ndarray
+    c: np.ndarray
+    params: dict[str, float]
+    stats: dict[str, int] = field(default_factory=dict)
+
+    def layers(self, n_layers: int = N_LAYERS) -> np.ndarray:
+        """Mean of c over each of ``n_layers`` equal layers (D_p high for 15):
+        (n_t, n_layers), layer 0 at the bottom, as a camera would see it."""
+        return np.asarray(_core.layer_means(np.ascontiguousarray(self.c), int(n_layers)))
+
+    @property
+    def depth_mean(self) -> np.ndarray:
+        """Depth-mean of c at each output time (conserved: equals c0)."""
+        return self.c.mean(axis=1)
+
+
+def simulate(
+    *,
+    t: Any,
+    n_cells: int = N_CELLS,
+    rtol: float | None = None,
+    atol: float | None = None,
+    **params: float,
+) -> Solution:
+    """Solve the segregation-diffusion model from the stratified initial state.
+
+    Parameters
+    ----------
+    t : output times, s (>= 0, strictly increasing; t = 0 gives the initial profile)
+    n_cells : finite-volume cells over the bed height (>= 15)
+    rtol, atol : step-size control tolerances (defaults meet 1e-3 on the
+        15-layer maps)
+    **params : any model parameter of MODEL.md by name, e.g. ``rho_h=2450``
+        (kg/m^3), ``rho_l=946``, ``c0=0.5``, ``k=0.7``, ``delta_over_H=0.18``.
+
+    Example
+    -------
+    >>> sol = simulate(rho_h=2450, rho_l=946, c0=0.5, t=np.arange(0, 3601, 2.0))
+    >>> sol.layers().shape
+    (1801, 15)
+    """
+    p = _params(params)
+    times = _times(t)
+    n_cells, rtol, atol = _solver_options(n_cells, rtol, atol)
+    z, c, stats = _call(_core.simulate, p, times, n_cells, rtol, atol)
+    return Solution(t=times, z=np.asarray(z), c=np.asarray(c), params=p, stats=dict(stats))
+
+
+def steady_state(*, n_cells: int = N_CELLS, **params: float) -> tuple[np.ndarray, np.ndarray]:
+    """The long-time profile (zero flux everywhere), solved directly in z.
+
+    Returns ``(z, c)``: cell centres in m and cell averages of c on
+    ``n_cells`` cells, with depth-mean exactly c0.
+    """
+    p = _params(params)
+    n_cells, _, _ = _solver_options(n_cells, None, None)
+    z, c = _call(_core.steady_state, p, n_cells)
+    return np.asarray(z), np.asarray(c)
+
+
+def derived(**params: float) -> dict[str, float]:
+    """Derived constants: v0 [m/s], P_load [Pa], A [m^2], omega [rad/s]."""
+    return dict(_core.derived(_params(params)))
+
+
+def velocity_profile(z: Any, t: float = 0.0, **params: float) -> tuple[np.ndarray, np.ndarray]:
+    """Velocity v(z) [m/s] and shear rate [1/s] at heights z [m] and time t [s]."""
+    z = np.ascontiguousarray(z, dtype=np.float64)
+    v, g = _core.velocity_profile(_params(params), z.ravel(), float(t))
+    return np.asarray(v).reshape(z.shape), np.asarray(g).reshape(z.shape)
+
+
+# --------------------------------------------------------------------- sweep
+
+
+@dataclass(frozen=True)
+class SweepResult:
+    """Runs of a sweep, ordered case-major (each case crossed with the grid).
+
+    Attributes
+    ----------
+    params : list of the full parameter dict of each run
+    grid_points : list of the grid coordinates of each run
+    case_index : (n_runs,) index of the case (experiment) of each run
+    t : common output times (n_t,), or a list of per-run times
+    layers : (n_runs, n_t, 15) model layer maps when all runs share times,
+        else a list of (n_t_i, n_layers) arrays. With measured maps these are
+        smoothed like the map, i.e. exactly what the RMSD compares.
+    rmsd : (n_runs,) RMSD against each run's measured map, or None
+    stats : solver counters per run
+    """
+
+    params: list[dict[str, float]]
+    grid_points: list[dict[str, float]]
+    case_index: np.ndarray
+    t: Any
+    layers: Any
+    rmsd: np.ndarray | None
+    stats: list[dict[str, int]]
+
+    @property
+    def n_runs(self) -> int:
+        return len(self.params)
+
+    def table(self) -> list[dict[str, Any]]:
+        """One row per run: case index, grid point and RMSD (if any)."""
+        rows = []
+        for i, gp in enumerate(self.grid_points):
+            row: dict[str, Any] = {"case": int(self.case_index[i]), **gp}
+            if self.rmsd is not None:
+                row["rmsd"] = float(self.rmsd[i])
+            rows.append(row)
+        return rows
+
+
+def _grid_points(grid: Mapping[str, Iterable[float]] | None) -> list[dict[str, float]]:
+    if not grid:
+        return [{}]
+    if not isinstance(grid, Mapping):
+        raise ValueError("grid must be a dict mapping parameter names to lists of values")
+    keys, values = [], []
+    for name, vals in grid.items():
+        if name not in _DEFAULTS:
+            raise ValueError(f"grid: unknown model parameter {name!r}; known: {', '.join(PARAMETERS)}")
+        vals = list(np.atleast_1d(np.asarray(vals, dtype=object)))
+        if not vals:
+            raise ValueError(f"grid: {name} has no values")
+        for v in vals:
+            try:
+                fv = float(v)
+            except (TypeError, ValueError):
+                raise ValueError(f"grid: {name} value {v!r} is not a number") from None
+            if not math.isfinite(fv):
+                raise ValueError(f"grid: {name} value {v!r} is not finite")
+        keys.append(name)
+        values.append([float(v) for v in vals])
+    return [dict(zip(keys, combo, strict=True)) for combo in itertools.product(*values)]
+
+
+def _measured_entry(m: Any, i: int) -> tuple[np.ndarray, np.ndarray, int]:
+    """(c, t, smoothing_frames) of a measured map given as dict or Map."""
+    get = (lambda k, d=None: m.get(k, d)) if isinstance(m, Mapping) else (lambda k, d=None: getattr(m, k, d))
+    c, t, s = get("c"), get("t"), get("smoothing_frames", 1)
+    if c is None or t is None:
+        raise ValueError(f"measured[{i}] needs the arrays c and t (DATA.md layout)")
+    c = np.ascontiguousarray(c, dtype=np.float64)
+    t = _times(t, f"measured[{i}].t")
+    if c.ndim != 2 or c.shape[0] != t.size:
+        raise ValueError(f"measured[{i}].c must have shape (n_t, n_layers) = ({t.size}, n_layers), got {c.shape}")
+    if c.shape[1] < 1 or not np.any(np.isfinite(c)):
+        raise ValueError(f"measured[{i}].c has no finite entry")
+    s = 1 if s is None else int(s)
+    if s < 1:
+        raise ValueError(f"measured[{i}].smoothing_frames = {s} must be >= 1")
+    return c, t, s
+
+
+def _run_chunk(payload: dict[str, Any]) -> tuple[list[np.ndarray], np.ndarray, list[dict[str, int]]]:
+    """Solve a list of runs with the Rust sweep (also what Dask workers run)."""
+    layers, rmsd, stats = _call(
+        _core.sweep,
+        payload["params"],
+        payload["t"],
+        payload["measured"],
+        payload["smoothing"],
+        payload["n_cells"],
+        payload["rtol"],
+        payload["atol"],
+        payload.get("threads"),
+    )
+    return [np.asarray(x) for x in layers], np.asarray(rmsd), [dict(s) for s in stats]
+
+
+def _chunks(n: int, size: int) -> list[slice]:
+    return [slice(i, min(i + size, n)) for i in range(0, n, size)]
+
+
+def sweep(
+    grid: Mapping[str, Iterable[float]] | None = None,
+    *,
+    base: Mapping[str, float] | None = None,
+    cases: Sequence[Mapping[str, float]] | None = None,
+    t: Any = None,
+    measured: Sequence[Any] | None = None,
+    n_cells: int = N_CELLS,
+    rtol: float | None = None,
+    atol: float | None = None,
+    threads: int | None = None,
+    client: Any = None,
+    progress: bool | None = None,
+) -> SweepResult:
+    """Run the full factorial of ``grid`` for one or several experiments, in parallel.
+
+    Parameters
+    ----------
+    grid : {parameter name: list of values}; the full factorial is run
+        (``itertools.product`` order, last key fastest).
+    base : parameters of a single experiment (alternative to ``cases``).
+    cases : one parameter dict per experiment; every case is crossed with the grid.
+    t : common output times, s. Required unless ``measured`` is given.
+    measured : one measured map per case (dict or Map with ``c`` (n_t, n_layers),
+        ``t`` (n_t,), optional ``smoothing_frames``). The model is evaluated at
+        the map's times, smoothed like the map, and its RMSD returned.
+    n_cells, rtol, atol : solver settings as in :func:`simulate`.
+    threads : worker threads for this call (default: RAYON_NUM_THREADS or all cores).
+    client : a ``dask.distributed.Client``; the runs are split into chunks,
+        each solved by the Rust sweep on a worker.
+    progress : show a progress bar (default: for large sweeps on a terminal).
+    """
+    if base is not None and cases is not None:
+        raise ValueError("give either base= (one experiment) or cases= (several), not both")
+    case_list = [dict(base or {})] if cases is None else [dict(c) for c in cases]
+    if not case_list:
+        raise ValueError("cases is empty: give at least one experiment")
+    points = _grid_points(grid)
+    n_cells, rtol, atol = _solver_options(n_cells, rtol, atol)
+    if threads is not None and (not isinstance(threads, int) or threads < 1):
+        raise ValueError(f"threads = {threads!r} must be a positive integer")
+
+    if measured is not None:
+        if len(measured) != len(case_list):
+            raise ValueError(f"measured has {len(measured)} maps but there are {len(case_list)} cases")
+        meas = [_measured_entry(m, i) for i, m in enumerate(measured)]
+        case_t = [m[1] for m in meas]
+    else:
+        if t is None:
+            raise ValueError("t (output times, s) is required when no measured maps are given")
+        common = _times(t)
+        meas = [None] * len(case_list)
+        case_t = [common] * len(case_list)
+
+    run_params, run_points, run_case = [], [], []
+    for ci, case in enumerate(case_list):
+        for gp in points:
+            run_params.append(_params({**case, **gp}, where=f"case {ci}, grid point {gp}: "))
+            run_points.append(dict(gp))
+            run_case.append(ci)
+    n = len(run_params)
+    payload = {
+        "params": run_params,
+        "t": [case_t[c] for c in run_case],
+        "measured": [None if meas[c] is None else meas[c][0] for c in run_case],
+        "smoothing": [1 if meas[c] is None else meas[c][2] for c in run_case],
+        "n_cells": n_cells,
+        "rtol": rtol,
+        "atol": atol,
+        "threads": threads,
+    }
+    layers, rmsd, stats = _execute(payload, n, client, progress)
+
+    same_t = all(ct is case_t[0] or np.array_equal(ct, case_t[0]) for ct in case_t)
+    layers_out: Any = np.stack(layers) if same_t else layers
+    return SweepResult(
+        params=run_params,
+        grid_points=run_points,
+        case_index=np.asarray(run_case, dtype=np.int64),
+        t=case_t[0] if same_t else [case_t[c] for c in run_case],
+        layers=layers_out,
+        rmsd=rmsd if measured is not None else None,
+        stats=stats,
+    )
+
+
+def _execute(payload: dict[str, Any], n: int, client: Any, progress: bool | None):
+    """Run the payload locally (rayon) or on a Dask client, in chunks."""
+    keys = ("params", "t", "measured", "smoothing")
+
+    def sub(sl: slice) -> dict[str, Any]:
+        return {**payload, **{k: payload[k][sl] for k in keys}}
+
+    if client is not None:
+        n_workers = max(1, len(client.scheduler_info().get("workers", {})))
+        slices = _chunks(n, max(1, math.ceil(n / (2 * n_workers))))
+        futures = client.map(_run_chunk, [sub(s) for s in slices], pure=False)
+        parts = client.gather(futures)
+    else:
+        import sys
+
+        show = progress if progress is not None else (n >= 64 and sys.stderr.isatty())
+        if not show:
+            parts = [_run_chunk(payload)]
+        else:
+            from tqdm.auto import tqdm
+
+            slices = _chunks(n, max(4, math.ceil(n / 20)))
+            parts = []
+            with tqdm(total=n, desc="granseg sweep", unit="run") as bar:
+                for s in slices:
+                    parts.append(_run_chunk(sub(s)))
+                    bar.update(s.stop - s.start)
+    layers = [x for p in parts for x in p[0]]
+    rmsd = np.concatenate([p[1] for p in parts])
+    stats = [s for p in parts for s in p[2]]
+    return layers, rmsd, stats

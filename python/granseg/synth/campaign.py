@@ -1,0 +1,379 @@
+"""Virtual experiments: a campaign of maps from the model, with a chosen effect hidden in it.
+
+``campaign(...)`` runs the segregation-diffusion model for a list of
+conditions (default: the 16 of the paper's Table 1) with one effect of the
+diagnosis catalogue switched on at a chosen strength, and turns each run into
+a map in the DATA.md format through a realistic measurement:
+
+* **counting** - each of the 15 layers of the 9 D_p wide window holds 9 to 11
+  spheres per frame (drawn uniformly each frame);
+* **binomial sampling** - each sphere in view is heavy with the probability
+  the wall shows (the bed's layer mean, or the effect's wall view);
+* **persistence** - a sphere stays in view from one frame to the next unless
+  the flow carries it out of the window: the survival probability of layer j
+  is exp(-v(z_j) dt / W), v the model's velocity at the layer centre [m/s],
+  dt = 1 / fps [s], W = 9 D_p [m]. Near the driven bottom every frame shows
+  new spheres; near the almost rigid top the same spheres stay for minutes,
+  so the counting noise there is strongly correlated in time;
+* **moving average** - ``c`` is the centred moving average of ``c_raw`` over
+  ``smoothing_frames`` (about ``smoothing_s`` seconds), as the paper smooths.
+
+Frame rates follow the paper: 1.5 fps for delta_R >= 3 (steel and ceramic
+mixtures), 0.5 fps otherwise; each run lasts until its model map has been
+within 0.02 of its final state for half as long again (at least 600 s).
+
+Effects (``effect=`` and the meaning of ``strength``):
+
+=============================  ===============================================
+``None`` / ``"none"``           the baseline of MODEL.md
+``load_dependent_shear_band``   exponent p: delta/H = delta/H_ref (M~/0.5)^-p
+``evolving_shear_band``         delta_drift [-] (time scale ``drift_time`` s,
+                                default 600 s)
+``sidewall_excess``             s: c_wall = c + a c (1-c), a = s M~/0.5
+``material_friction``           s: k_pair = k exp(s r_pair), r_pair the mean of
+                                the two materials' roughness (ROUGHNESS)
+``spin_up_delay``               t_d [s]
+``diffusivity_scale``           factor: b = 0.041 x factor
+``misclassification``           f: a share f of spheres of each kind is taken
+                                for the other (c_seen = f + (1 - 2f) c); NOT in
+                                the diagnosis catalogue (for testing
+                                "unexplained")
+=============================  ===============================================
+
+Example::
+
+    >>> maps = campaign("camp/", effect="load_dependent_shear_band", strength=0.5,
+    ...                 seed=1)                                    # doctest: +SKIP
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+__all__ = ["EFFECTS", "ROUGHNESS", "TABLE1", "Condition", "campaign", "random_conditions",
+           "frame_rate", "fill_mass"]
+
+#: Relative surface roughness of each material (for the material_friction effect) [-].
+ROUGHNESS: dict[str, float] = {"steel": -1.0, "ceramic": 1.0, "glass": -0.4, "POM": 0.6, "PP": 0.2}
+SIDEWALL_REF = 0.5
+WINDOW_WIDTH_DP = 9.0
+EFFECTS = ("none", "load_dependent_shear_band", "evolving_shear_band", "sidewall_excess",
+           "material_friction", "spin_up_delay", "diffusivity_scale", "misclassification")
+
+
+@dataclass(frozen=True)
+class Condition:
+    """One experiment to simulate: materials, c0 [-], grain mass M_g [kg], lid load M_w [kg]."""
+
+    heavy: str
+    light: str
+    c0: float
+    M_g: float
+    M_w: float = 1.093
+    name: str = ""
+
+    def label(self) -> str:
+        """Experiment id, e.g. ``G-PP-50``."""
+        if self.name:
+            return self.name
+        short = {"steel": "S", "ceramic": "C", "glass": "G"}
+        return f"{short.get(self.heavy, self.heavy)}-{short.get(self.light, self.light)}-{round(100 * self.c0)}"
+
+
+def _table1() -> list[Condition]:
+    rows = {
+        ("steel", "PP"): {0.50: 5.25, 0.75: 7.30, 0.90: 8.54},
+        ("steel", "POM"): {0.10: 2.83, 0.25: 3.92, 0.50: 5.73, 0.75: 7.55, 0.90: 8.64},
+        ("ceramic", "PP"): {0.50: 2.67, 0.75: 3.43, 0.90: 3.89},
+        ("glass", "PP"): {0.50: 2.04, 0.75: 2.49, 0.90: 2.76},
+        ("POM", "PP"): {0.50: 1.62},
+        ("glass", "POM"): {0.50: 2.52},
+    }
+    return [Condition(h, lt, c0, mg) for (h, lt), d in rows.items() for c0, mg in d.items()]
+
+
+#: The 16 conditions of the paper's Table 1 (materials, c0, M_g [kg]).
+TABLE1: tuple[Condition, ...] = tuple(_table1())
+
+
+def fill_mass(heavy: str, light: str, c0: float) -> float:
+    """Mass of grains [kg] filling the bed (H = 15 D_p, phi_s = 0.6) with heavy share c0."""
+    from granseg.model import MATERIALS, defaults, derived
+
+    p = defaults()
+    rho = MATERIALS[heavy] * c0 + MATERIALS[light] * (1 - c0)
+    return p["phi_s"] * derived()["A"] * p["H"] * rho
+
+
+def random_conditions(n: int, seed: int | None = None) -> list[Condition]:
+    """``n`` distinct random conditions: a Table-1 material pair, c0 in {0.25, 0.5, 0.75},
+    M_g [kg] the fill mass with a 3 % scatter (Table 1 agrees with it to about 1-3 %)."""
+    rng = np.random.default_rng(seed)
+    pairs = sorted({(c.heavy, c.light) for c in TABLE1})
+    combos = [(h, lt, c0) for h, lt in pairs for c0 in (0.25, 0.5, 0.75)]
+    if not 1 <= n <= len(combos):
+        raise ValueError(f"n = {n}: random_conditions draws 1 to {len(combos)} distinct conditions")
+    picks = rng.choice(len(combos), size=n, replace=False)
+    out = []
+    for i in sorted(picks):
+        h, lt, c0 = combos[i]
+        out.append(Condition(h, lt, c0, round(fill_mass(h, lt, c0) * rng.uniform(0.97, 1.03), 3)))
+    return out
+
+
+def frame_rate(rho_h: float, rho_l: float) -> float:
+    """The paper's camera rate [1/s]: 1.5 fps for delta_R >= 3, else 0.5 fps."""
+    return 1.5 if rho_h / rho_l >= 3.0 else 0.5
+
+
+# --------------------------------------------------------------------------- effects
+
+
+def _effect_setup(effect: str, strength: float, cond: Condition, base: Mapping[str, float],
+                  effect_params: Mapping[str, float]) -> tuple[dict[str, float], float, Any]:
+    """Solver parameters, time shift [s] and wall-view function of one experiment."""
+    from granseg.diagnose import catalogue as cat
+    from granseg.model import MATERIALS
+
+    exp = cat.ExpInfo(cond.label(), cond.heavy, cond.light, MATERIALS[cond.heavy],
+                      MATERIALS[cond.light], cond.c0, cond.M_g, cond.M_w)
+    x = {"k": base["k"], "delta_over_H": base["delta_over_H"]}
+    params = cat.Baseline().solver_params(x, exp)
+    shift, view = 0.0, None
+    if effect == "load_dependent_shear_band":
+        params = cat.LoadDependentShearBand().solver_params({**x, "exponent": strength}, exp)
+    elif effect == "evolving_shear_band":
+        params.update(delta_drift=strength, delta_drift_time=float(effect_params.get("drift_time", 600.0)))
+    elif effect == "sidewall_excess":
+        a = float(np.clip(strength * exp.M_tilde / SIDEWALL_REF, -1.0, 1.0))
+        view = lambda c: cat.sidewall_view(c, a)  # noqa: E731
+    elif effect == "material_friction":
+        r = 0.5 * (ROUGHNESS.get(cond.heavy, 0.0) + ROUGHNESS.get(cond.light, 0.0))
+        params["k"] = base["k"] * math.exp(strength * r)
+    elif effect == "spin_up_delay":
+        shift = float(strength)
+    elif effect == "diffusivity_scale":
+        params["b"] = cat.B_LITERATURE * float(strength)
+    elif effect == "misclassification":
+        view = lambda c: strength + (1.0 - 2.0 * strength) * c  # noqa: E731
+    return params, shift, view
+
+
+def _check_effect(effect: str | None, strength: float | None) -> tuple[str, float]:
+    effect = "none" if effect is None else str(effect)
+    if effect not in EFFECTS:
+        raise ValueError(f"effect = {effect!r}: unknown; choose one of {', '.join(EFFECTS)}")
+    if effect == "none":
+        return effect, 0.0
+    if strength is None or not math.isfinite(float(strength)):
+        raise ValueError(f"strength: a finite number is required for effect {effect!r}")
+    s = float(strength)
+    limits = {"spin_up_delay": (0.0, 3600.0), "diffusivity_scale": (1e-3, 1e3),
+              "misclassification": (0.0, 0.5), "sidewall_excess": (-2.0, 2.0)}
+    lo, hi = limits.get(effect, (-5.0, 5.0))
+    if not lo <= s <= hi:
+        raise ValueError(f"strength = {s} for {effect!r} is out of range [{lo}, {hi}]")
+    return effect, s
+
+
+# --------------------------------------------------------------------------- one experiment
+
+
+def _truth(params: Mapping[str, float], t: np.ndarray, shift: float, n_cells: int) -> np.ndarray:
+    """Bed layer means (n_t, 15) at plate times t [s] with segregation delayed by ``shift``."""
+    from granseg.model import simulate
+
+    tm = t - shift
+    pos = tm > 0
+    req = np.concatenate([[0.0], tm[pos]]) if not pos.all() else tm
+    lay = simulate(t=req, n_cells=n_cells, rtol=1e-5, atol=1e-7, **params).layers()
+    idx = np.zeros(t.size, dtype=np.int64)
+    idx[pos] = np.arange(req.size - pos.sum(), req.size)
+    return lay[idx]
+
+
+def _duration(params: Mapping[str, float], shift: float, n_cells: int) -> float:
+    """Run length [s]: 1.5 x the time the layer map needs to settle within 0.02, >= 600 s."""
+    from granseg.model import simulate
+
+    t = np.arange(0.0, 8 * 3600.0 + 1, 20.0)
+    lay = simulate(t=t, n_cells=min(n_cells, 90), **params).layers()
+    dev = np.abs(lay - lay[-1]).max(axis=1)
+    unsettled = np.nonzero(dev >= 0.02)[0]
+    t_ss = t[unsettled[-1] + 1] if unsettled.size else 0.0
+    return float(max(600.0, math.ceil(1.5 * (t_ss + shift) / 60.0) * 60.0))
+
+
+def _persistence(params: Mapping[str, float], t: np.ndarray, fps: float, n_layers: int) -> np.ndarray:
+    """Survival probability (n_t, n_layers) of a sphere in view from one frame to the next."""
+    from granseg.model import velocity_profile
+
+    H, D_p = params.get("H", 0.09), params.get("D_p", 6e-3)
+    z = (np.arange(n_layers) + 0.5) * H / n_layers
+    times = [0.0, float(t[-1])] if not params.get("delta_drift") else list(t)
+    v = np.array([velocity_profile(z, tt, **params)[0] for tt in times])
+    if len(times) == 2:
+        v = np.repeat(v[:1], t.size, axis=0)
+    return np.exp(-np.abs(v) / fps / (WINDOW_WIDTH_DP * D_p))
+
+
+def _count(seen: np.ndarray, survive: np.ndarray, n_range: tuple[int, int], rng: np.random.Generator
+           ) -> tuple[np.ndarray, np.ndarray]:
+    """Spheres in view (n) and heavy ones (n_heavy) per frame and layer, with persistence."""
+    n_t, n_l = seen.shape
+    lo, hi = n_range
+    slots = rng.random((n_l, hi)) < seen[0][:, None]
+    n = rng.integers(lo, hi + 1, size=(n_t, n_l))
+    n_heavy = np.empty((n_t, n_l), dtype=np.int64)
+    cols = np.arange(hi)[None, :]
+    for i in range(n_t):
+        if i:
+            fresh = rng.random((n_l, hi)) >= survive[i][:, None]
+            draws = rng.random((n_l, hi)) < seen[i][:, None]
+            slots = np.where(fresh, draws, slots)
+        n_heavy[i] = (slots & (cols < n[i][:, None])).sum(axis=1)
+    return n, n_heavy
+
+
+def _experiment(cond: Condition, effect: str, strength: float, base: Mapping[str, float],
+                effect_params: Mapping[str, float], rng: np.random.Generator, opts: Mapping[str, Any]
+                ) -> dict[str, Any]:
+    """The map arrays (DATA.md keys) of one virtual experiment."""
+    from granseg.maps import moving_average
+
+    params, shift, view = _effect_setup(effect, strength, cond, base, effect_params)
+    fps = float(opts["fps"] or frame_rate(params["rho_h"], params["rho_l"]))
+    duration = float(opts["duration"] or _duration(params, shift, opts["n_cells"]))
+    t = np.arange(0.0, duration + 0.5 / fps, 1.0 / fps)
+    bed = _truth(params, t, shift, opts["n_cells"])
+    seen = np.clip(view(bed) if view else bed, 0.0, 1.0)
+    H = params.get("H", 0.09)
+    z = (np.arange(bed.shape[1]) + 0.5) * H / bed.shape[1]
+    out = dict(t=t, z=z, name=cond.label(), heavy=cond.heavy, light=cond.light,
+               rho_h=params["rho_h"], rho_l=params["rho_l"], c0=cond.c0, M_g=cond.M_g,
+               M_w=cond.M_w, fps=fps)
+    if not opts["noise"]:
+        return {**out, "c": seen, "smoothing_frames": 1}
+    window = max(1, int(round(opts["smoothing_s"] * fps)) // 2 * 2 + 1)
+    survive = _persistence(params, t, fps, bed.shape[1])
+    n, n_heavy = _count(seen, survive, opts["n_particles"], rng)
+    c_raw = n_heavy / n
+    return {**out, "c": np.clip(moving_average(c_raw, window), 0.0, 1.0), "c_raw": c_raw,
+            "n": n, "n_heavy": n_heavy, "smoothing_frames": window}
+
+
+# --------------------------------------------------------------------------- public
+
+
+def _conditions(conditions: Sequence[Any] | None) -> list[Condition]:
+    if conditions is None:
+        return list(TABLE1)
+    out = []
+    for i, c in enumerate(conditions):
+        if isinstance(c, Condition):
+            out.append(c)
+        elif isinstance(c, Mapping):
+            try:
+                out.append(Condition(**c))
+            except TypeError as exc:
+                raise ValueError(f"conditions[{i}]: {exc}") from None
+        else:
+            raise ValueError(f"conditions[{i}]: expected a Condition or a dict, got {type(c).__name__}")
+    if not out:
+        raise ValueError("conditions is empty")
+    from granseg.model import MATERIALS
+
+    for i, c in enumerate(out):
+        for key in ("heavy", "light"):
+            if getattr(c, key) not in MATERIALS:
+                raise ValueError(f"conditions[{i}].{key} = {getattr(c, key)!r}: unknown material; "
+                                 f"known: {', '.join(MATERIALS)}")
+        if not (0 < c.c0 < 1) or not (c.M_g > 0) or not (c.M_w >= 0):
+            raise ValueError(f"conditions[{i}]: need 0 < c0 < 1, M_g > 0 kg, M_w >= 0 kg; got {c}")
+    names = [c.label() for c in out]
+    if len(set(names)) != len(names):
+        raise ValueError(f"conditions: duplicate experiment names {names}")
+    return out
+
+
+def campaign(
+    out_dir: str | os.PathLike | None = None,
+    *,
+    conditions: Sequence[Condition | Mapping[str, Any]] | None = None,
+    effect: str | None = None,
+    strength: float | None = None,
+    seed: int | None = 0,
+    noise: bool = True,
+    n_particles: tuple[int, int] = (9, 11),
+    smoothing_s: float = 10.0,
+    fps: float | None = None,
+    duration: float | None = None,
+    k: float = 0.70,
+    delta_over_H: float = 0.18,
+    effect_params: Mapping[str, float] | None = None,
+    n_cells: int = 180,
+    force: bool = False,
+) -> list[Any]:
+    """Simulate a campaign of virtual experiments with one effect hidden in it.
+
+    Parameters
+    ----------
+    out_dir : directory to write one map ``NAME.npz`` per experiment (DATA.md)
+        and ``campaign.json`` (the ground truth); created if missing; existing
+        files are kept unless ``force``. None: only return the maps.
+    conditions : list of :class:`Condition` (or dicts with heavy, light, c0,
+        M_g [kg], optional M_w [kg], name); default :data:`TABLE1`.
+    effect, strength : the hidden effect and its size (see the module doc).
+    seed : random seed of the measurement noise.
+    noise : False gives the exact wall view (no counting, no smoothing).
+    n_particles : (min, max) spheres per layer and frame.
+    smoothing_s : moving-average length [s] (odd number of frames).
+    fps : frame rate [1/s] for every run (default: the paper's, per delta_R).
+    duration : run length [s] for every run (default: to the steady state).
+    k, delta_over_H : the baseline's friction correction [-] and band width [-].
+    effect_params : extra settings (``drift_time`` [s] of evolving_shear_band).
+    n_cells : cells of the simulation behind the maps.
+
+    Returns the list of :class:`granseg.maps.Map`, in condition order.
+    """
+    from granseg.maps import Map, save_map
+
+    effect, s = _check_effect(effect, strength)
+    conds = _conditions(conditions)
+    lo, hi = (int(v) for v in n_particles)
+    if not 1 <= lo <= hi:
+        raise ValueError(f"n_particles = {n_particles!r}: need 1 <= min <= max")
+    if not smoothing_s >= 0:
+        raise ValueError(f"smoothing_s = {smoothing_s!r} s must be >= 0")
+    opts = dict(noise=bool(noise), n_particles=(lo, hi), smoothing_s=float(smoothing_s),
+                fps=fps, duration=duration, n_cells=int(n_cells))
+    base = {"k": float(k), "delta_over_H": float(delta_over_H)}
+    rng = np.random.default_rng(seed)
+    arrays = [_experiment(c, effect, s, base, dict(effect_params or {}), rng, opts) for c in conds]
+    maps = [Map(**a) for a in arrays]
+    if out_dir is not None:
+        _write(Path(out_dir), arrays, save_map, force,
+               {"effect": effect, "strength": s, "seed": seed, "baseline": base,
+                "effect_params": dict(effect_params or {}), "noise": bool(noise),
+                "n_particles": [lo, hi], "smoothing_s": smoothing_s,
+                "experiments": [a["name"] for a in arrays], "synthetic": True})
+    return maps
+
+
+def _write(out: Path, arrays: list[dict[str, Any]], save_map: Any, force: bool, truth: dict[str, Any]) -> None:
+    from granseg._io import check_writable, save_json
+
+    out.mkdir(parents=True, exist_ok=True)
+    targets = [out / f"{a['name']}.npz" for a in arrays] + [out / "campaign.json"]
+    for p in targets:
+        check_writable(p, force)
+    for a, p in zip(arrays, targets, strict=False):
+        save_map(p, force=force, **a)
+    save_json(out / "campaign.json", truth, force=force)

@@ -1,0 +1,144 @@
+//! What a measurement sees: layer means, the centred moving average and the
+//! RMSD between a measured and a model map (MODEL.md, DATA.md).
+
+use crate::error::SolveError;
+
+/// Cell-to-layer averaging weights for `n_layers` equal layers over the bed.
+/// Exact for piecewise-constant cell values, for any n_cells >= 1.
+pub struct LayerMap {
+    n_layers: usize,
+    /// (layer, cell, weight) triples, weights summing to 1 per layer.
+    entries: Vec<(usize, usize, f64)>,
+}
+
+impl LayerMap {
+    pub fn new(n_cells: usize, n_layers: usize) -> Self {
+        let mut entries = Vec::with_capacity(n_cells + n_layers);
+        // Work in units of 1 / (n_cells * n_layers) of the height: exact.
+        let (nc, nl) = (n_cells as u64, n_layers as u64);
+        for layer in 0..nl {
+            let (l0, l1) = (layer * nc, (layer + 1) * nc);
+            let first = (l0 / nl) as usize;
+            let last = (l1.div_ceil(nl)) as usize;
+            for cell in first..last.min(n_cells) {
+                let (c0, c1) = (cell as u64 * nl, (cell as u64 + 1) * nl);
+                let overlap = c1.min(l1).saturating_sub(c0.max(l0));
+                if overlap > 0 {
+                    entries.push((layer as usize, cell, overlap as f64 / nc as f64));
+                }
+            }
+        }
+        LayerMap { n_layers, entries }
+    }
+
+    pub fn n_layers(&self) -> usize {
+        self.n_layers
+    }
+
+    /// Layer means of one profile into `out` (length n_layers).
+    pub fn apply(&self, profile: &[f64], out: &mut [f64]) {
+        out.iter_mut().for_each(|v| *v = 0.0);
+        for &(layer, cell, w) in &self.entries {
+            out[layer] += w * profile[cell];
+        }
+    }
+}
+
+/// Centred moving average over time of an (n_t, n_cols) row-major map with
+/// window `width` (1 = none). The half-width is (width - 1) / 2 and shrinks
+/// symmetrically at the ends of the series, as DATA.md specifies.
+pub fn moving_average(map: &[f64], n_t: usize, n_cols: usize, width: usize) -> Vec<f64> {
+    let half = width.saturating_sub(1) / 2;
+    if half == 0 {
+        return map.to_vec();
+    }
+    let mut out = vec![0.0; map.len()];
+    for i in 0..n_t {
+        let hw = half.min(i).min(n_t - 1 - i);
+        let inv = 1.0 / (2 * hw + 1) as f64;
+        for j in 0..n_cols {
+            let mut s = 0.0;
+            for r in (i - hw)..=(i + hw) {
+                s += map[r * n_cols + j];
+            }
+            out[i * n_cols + j] = s * inv;
+        }
+    }
+    out
+}
+
+/// Root-mean-square deviation over the entries the measurement has (NaN in
+/// `measured` is skipped). NaN if it has none.
+pub fn rmsd(measured: &[f64], model: &[f64]) -> Result<f64, SolveError> {
+    if measured.len() != model.len() {
+        return Err(SolveError::InvalidInput(format!(
+            "measured map has {} entries, model map {}",
+            measured.len(),
+            model.len()
+        )));
+    }
+    let (mut s, mut n) = (0.0, 0usize);
+    for (a, b) in measured.iter().zip(model) {
+        if a.is_finite() {
+            s += (a - b) * (a - b);
+            n += 1;
+        }
+    }
+    Ok(if n == 0 {
+        f64::NAN
+    } else {
+        (s / n as f64).sqrt()
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn layer_means_are_exact_averages() {
+        // cells aligned with layers: a linear profile averages to the centres
+        for &n in &[15usize, 45, 180] {
+            let lm = LayerMap::new(n, 15);
+            let prof: Vec<f64> = (0..n).map(|i| (i as f64 + 0.5) / n as f64).collect();
+            let mut out = vec![0.0; 15];
+            lm.apply(&prof, &mut out);
+            for (j, v) in out.iter().enumerate() {
+                assert!(
+                    (v - (j as f64 + 0.5) / 15.0).abs() < 1e-12,
+                    "n={n} j={j} {v}"
+                );
+            }
+        }
+        // misaligned cells: compare with a fine sampling of the step function
+        for &n in &[16usize, 37, 100] {
+            let lm = LayerMap::new(n, 15);
+            let prof: Vec<f64> = (0..n).map(|i| ((i * 7919) % 13) as f64).collect();
+            let mut out = vec![0.0; 15];
+            lm.apply(&prof, &mut out);
+            let fine = 15 * n * 8;
+            for (j, v) in out.iter().enumerate() {
+                let samples = (j * fine / 15..(j + 1) * fine / 15).map(|s| prof[s * n / fine]);
+                let mean = samples.sum::<f64>() / (fine / 15) as f64;
+                assert!((v - mean).abs() < 1e-12, "n={n} j={j} {v} {mean}");
+            }
+        }
+    }
+
+    #[test]
+    fn moving_average_shrinks_at_the_ends() {
+        let x = [1.0, 2.0, 6.0, 4.0, 10.0];
+        let y = moving_average(&x, 5, 1, 3);
+        for (a, b) in y.iter().zip([1.0, 3.0, 4.0, 20.0 / 3.0, 10.0]) {
+            assert!((a - b).abs() < 1e-14, "{y:?}");
+        }
+        assert_eq!(moving_average(&x, 5, 1, 1), x.to_vec());
+    }
+
+    #[test]
+    fn rmsd_skips_nan() {
+        let r = rmsd(&[0.0, f64::NAN, 1.0], &[0.5, 3.0, 0.5]).unwrap();
+        assert!((r - 0.5).abs() < 1e-15);
+        assert!(rmsd(&[f64::NAN], &[1.0]).unwrap().is_nan());
+    }
+}

@@ -1,0 +1,22 @@
+//! granseg's numerical core: the segregation-diffusion model of MODEL.md,
+//! its implicit adaptive stepper, the direct steady-state solve and the
+//! parallel sweep. Pure Rust; the PyO3 layer lives in `bindings.rs` behind
+//! the `python` feature, so `cargo test` and `cargo bench` need no Python.
+
+pub mod error;
+pub mod flux;
+pub mod layers;
+pub mod model;
+pub mod params;
+pub mod pressure_coupled;
+pub mod steady;
+pub mod stepper;
+pub mod sweep;
+pub mod tridiag;
+
+#[cfg(feature = "python")]
+mod bindings;
+
+pub use error::SolveError;
+pub use params::Params;
+pub use stepper::{integrate, simulate, Stats, Tolerances};

@@ -1,0 +1,174 @@
+"""Video == frames, camera calibration, and every bad input named clearly."""
+
+from __future__ import annotations
+
+import json
+
+import cv2
+import numpy as np
+import pytest
+from granseg._io import OutputExistsError
+from granseg.cli import main
+from granseg.measure import BadFrameWarning, analyze, calibrate_camera
+from granseg.measure.camera import Undistorter, find_checkerboard
+from granseg.synth import render_checkerboard, render_frames
+from granseg.synth.frames import default_camera
+
+SMALL = dict(heavy="ceramic", light="pp", particle_diameter_px=20, image_size=(400, 480))
+
+
+def _map(n_t=4):
+    c = np.zeros((n_t, 15))
+    c[:, 8:] = 1.0
+    c[2:] = 0.5
+    return c
+
+
+@pytest.fixture
+def frames(tmp_path):
+    d = tmp_path / "run"
+    render_frames(_map(), seed=1, out_dir=d, **SMALL)
+    return d
+
+
+def test_video_gives_the_same_map_as_its_frames(frames, tmp_path):
+    images = [cv2.imread(str(p)) for p in sorted(frames.glob("*.png"))]
+    video = tmp_path / "vid" / "run.avi"
+    video.parent.mkdir()
+    writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"FFV1"), 2.0, images[0].shape[1::-1])
+    for img in images:
+        writer.write(img)
+    writer.release()
+    (video.parent / "experiment.json").write_text((frames / "experiment.json").read_text())
+    a = analyze(frames, save=False, progress=False)
+    b = analyze(video, save=False, progress=False)
+    assert np.array_equal(a.n, b.n) and np.array_equal(a.n_heavy, b.n_heavy)
+    assert np.allclose(a.t, b.t)
+
+
+def test_cli_writes_map_and_refuses_to_overwrite(frames, capsys):
+    from granseg.maps import load_map
+
+    assert main(["analyze", str(frames), "--smooth", "3", "--no-progress", "--preview", str(frames / "prev")]) == 0
+    m = load_map(frames / "map.npz")
+    assert m.smoothing_frames == 3 and m.c.shape == (4, 15)
+    assert len(list((frames / "prev").glob("*.png"))) == 4
+    before = (frames / "map.npz").read_bytes()
+    assert main(["analyze", str(frames), "--no-progress"]) == 2
+    assert "exists" in capsys.readouterr().err
+    assert (frames / "map.npz").read_bytes() == before
+    assert main(["analyze", str(frames), "--no-progress", "--force", "--smooth", "1"]) == 0
+
+
+@pytest.mark.parametrize("damage, message", [
+    (lambda p: p.write_bytes(b""), "empty file"),
+    (lambda p: p.write_bytes(p.read_bytes()[:2000]), "truncated PNG"),
+    (lambda p: p.write_bytes(b"not an image at all"), "not a readable image"),
+])
+def test_single_bad_frame_becomes_nan_row(frames, damage, message):
+    damage(sorted(frames.glob("*.png"))[2])
+    with pytest.warns(BadFrameWarning, match=f"frame_0002.png: {message}"):
+        a = analyze(frames, save=False, progress=False, smooth=3)
+    assert np.all(np.isnan(a.c[2])) and np.all(np.isfinite(a.c_raw[[0, 1, 3]]))
+    assert [name for name, _ in a.bad_frames] == ["frame_0002.png"]
+
+
+def test_frame_without_spheres_is_named(frames):
+    p = sorted(frames.glob("*.png"))[1]
+    cv2.imwrite(str(p), np.full((480, 400, 3), 90, np.uint8))
+    with pytest.warns(BadFrameWarning, match="frame_0001.png: no spheres detected"):
+        a = analyze(frames, save=False, progress=False)
+    assert len(a.bad_frames) == 1
+
+
+@pytest.mark.parametrize("edit, message", [
+    (lambda e: e.pop("rho_h"), "missing field 'rho_h'"),
+    (lambda e: e.update(window=[10, 20, 5, 40]), "field 'window'"),
+    (lambda e: e.update(window=[-500, 0, 50, 400]), "field 'window'.*outside the image"),
+    (lambda e: e.update(camera_matrix=[[1, 0], [0, 1]]), "field 'camera_matrix'"),
+    (lambda e: e.update(c0=1.5), "field 'c0'"),
+    (lambda e: e.pop("fps"), "field 'fps'"),
+])
+def test_bad_experiment_fields_are_named(frames, edit, message):
+    path = frames / "experiment.json"
+    exp = json.loads(path.read_text())
+    edit(exp)
+    path.write_text(json.dumps(exp))
+    with pytest.raises(ValueError, match=message):
+        analyze(frames, save=False, progress=False)
+
+
+def test_missing_inputs_are_named(tmp_path, frames):
+    with pytest.raises(FileNotFoundError, match="no such frames directory"):
+        analyze(tmp_path / "nowhere", progress=False)
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(ValueError, match="no PNG or JPEG frames"):
+        analyze(tmp_path / "empty", progress=False)
+    (frames / "experiment.json").write_text("{not json")
+    with pytest.raises(ValueError, match="experiment.json: not valid JSON"):
+        analyze(frames, progress=False)
+    (frames / "experiment.json").unlink()
+    with pytest.raises(FileNotFoundError, match="experiment.json not found"):
+        analyze(frames, progress=False)
+    bad_video = tmp_path / "v" / "broken.mp4"
+    bad_video.parent.mkdir()
+    bad_video.write_bytes(b"\x00" * 1000)
+    with pytest.raises(ValueError, match="broken.mp4: not a video"):
+        analyze(bad_video, progress=False)
+
+
+def test_existing_output_is_kept(frames):
+    out = frames / "mine.npz"
+    out.write_bytes(b"precious")
+    with pytest.raises(OutputExistsError):
+        analyze(frames, out=out, progress=False)
+    assert out.read_bytes() == b"precious"
+
+
+# --------------------------------------------------------------------------- camera
+
+
+def _boards(tmp_path, k, dist, size):
+    poses = [((0.1, -0.2, 0.05), (-3.5, -2.5, 14)), ((-0.3, 0.1, -0.1), (-5, -3, 13)),
+             ((0.25, 0.3, 0.2), (-4, -4, 15)), ((-0.1, -0.35, 0.0), (-2, -2.5, 12)),
+             ((0.35, 0.0, -0.2), (-6, -2, 14)), ((0.0, 0.2, 0.3), (-3, -5, 16))]
+    for i, (r, t) in enumerate(poses):
+        cv2.imwrite(str(tmp_path / f"board_{i}.png"), render_checkerboard(k, dist, size, r, t))
+
+
+def test_checkerboards_recover_the_camera_and_straighten_lines(tmp_path):
+    size = (800, 600)
+    k, dist = default_camera(size, k1=-0.25)
+    _boards(tmp_path, k, dist, size)
+    res = calibrate_camera(tmp_path)
+    assert res["reprojection_error_px"] < 0.5
+    assert np.allclose(np.array(res["camera_matrix"])[[0, 1], [0, 1]], k[[0, 1], [0, 1]], rtol=0.02)
+    # straight lines: a board seen through the lens has curved rows; undistorted, straight
+    img = render_checkerboard(k, dist, size, (0.05, 0.05, 0.0), (-5.0, -3.5, 11.5))
+    und = Undistorter(res["camera_matrix"], res["dist_coeffs"], size, (0, 0, *size))(img)
+    assert _row_curvature(find_checkerboard(img, (9, 6))) > 1.0
+    assert _row_curvature(find_checkerboard(und, (9, 6))) < 0.3
+
+
+def _row_curvature(corners) -> float:
+    """Largest distance [px] of a board corner from the straight line through its row."""
+    rows = corners.reshape(6, 9, 2)
+    worst = 0.0
+    for row in rows:
+        centred = row - row.mean(axis=0)
+        _, _, vt = np.linalg.svd(centred)
+        worst = max(worst, float(np.abs(centred @ vt[1]).max()))
+    return worst
+
+
+def test_calibrate_camera_cli(tmp_path, capsys):
+    size = (640, 480)
+    k, dist = default_camera(size)
+    _boards(tmp_path, k, dist, size)
+    assert main(["calibrate-camera", str(tmp_path), "--pattern", "9x6"]) == 0
+    assert "reprojection error" in capsys.readouterr().out
+    saved = json.loads((tmp_path / "camera.json").read_text())
+    assert len(saved["camera_matrix"]) == 3 and len(saved["dist_coeffs"]) == 5
+    with pytest.raises(ValueError, match="no checkerboard images"):
+        (tmp_path / "none").mkdir()
+        calibrate_camera(tmp_path / "none")

@@ -1,0 +1,166 @@
+"""Figures render headless and are non-trivial; the report is opened as a user sees it."""
+
+from __future__ import annotations
+
+import json
+import re
+import shutil
+import subprocess
+
+import matplotlib.image as mpimg
+import numpy as np
+import pytest
+from granseg import plot
+from granseg._io import OutputExistsError
+from granseg.fit import fit_campaign, tanh_curve
+from granseg.maps import Map
+
+H = 0.09
+Z = (np.arange(15) + 0.5) * 6e-3
+
+
+def fake_map(name: str, rho_h: float, seed: int, c0: float = 0.5) -> Map:
+    """A segregating map with noise; shape and values like a real experiment."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(0.0, 1200.0, 4.0)
+    dR = rho_h / 946.0
+    A = 1 - 0.5 / dR**2.3
+    tau = 1500.0 * np.exp(-0.8 * (dR - 1))
+    f = tanh_curve(t, A, 0.6 * tau, tau)[:, None] * np.exp(-Z / 0.03)[None, :]
+    start = (Z > (1 - c0) * H).astype(float)[None, :]
+    c = np.clip(start * (1 - f) + f + rng.normal(0, 0.04, (t.size, 15)), 0, 1)
+    return Map(c=c, t=t, z=Z, name=name, heavy="h", light="PP", rho_h=rho_h, rho_l=946.0,
+               c0=c0, M_g=2.0, M_w=1.093)
+
+
+@pytest.fixture(scope="module")
+def maps() -> list[Map]:
+    return [fake_map(n, r, i) for i, (n, r) in
+            enumerate([("C-PP-50", 3500), ("G-PP-50", 2450), ("POM-PP-50", 1750), ("G-PP-75", 2450)])]
+
+
+def assert_nontrivial(paths, min_colours: int = 50) -> None:
+    png, pdf = paths
+    assert png.suffix == ".png" and pdf.suffix == ".pdf"
+    img = mpimg.imread(png)
+    assert img.shape[0] > 300 and img.shape[1] > 500
+    rgb = (img[..., :3] * 255).astype(np.uint8).reshape(-1, 3)
+    assert np.unique(rgb, axis=0).shape[0] >= min_colours, "figure looks blank"
+    assert rgb.std() > 10
+    head = pdf.read_bytes()
+    assert head.startswith(b"%PDF") and len(head) > 5000
+
+
+def test_map_comparison(tmp_path, maps):
+    m = maps[0]
+    model = np.clip(m.c + 0.1, 0, 1)
+    fig = plot.map_comparison(m, model, H=H, rmsd=0.1, initial=(np.linspace(0, H, 100), np.zeros(100)))
+    axes = fig.get_axes()
+    assert axes[1].get_xlabel() == plot.T_LABEL and axes[0].get_ylabel() == plot.H_LABEL
+    assert len(axes) == 6  # profile, measured, model, residual + two colour bars
+    assert_nontrivial(plot.save_figure(fig, tmp_path / "map"), min_colours=200)
+    with pytest.raises(ValueError, match="model map shape"):
+        plot.map_comparison(m, model[:, :3], H=H)
+
+
+def test_curves_laws_grid_profiles(tmp_path, maps):
+    fits = fit_campaign(maps)
+    assert fits.beta is not None
+    assert_nontrivial(plot.save_figure(plot.bottom_fits(maps, fits.tanh), tmp_path / "bottom"))
+    assert_nontrivial(plot.save_figure(plot.laws(fits), tmp_path / "laws"))
+    pts = [{"k": k, "delta_over_H": d} for k in (0.5, 0.6, 0.7) for d in (0.18, 0.2, 0.22)]
+    r = [abs(p["k"] - 0.62) + abs(p["delta_over_H"] - 0.195) for p in pts]
+    fig = plot.rmsd_grid(pts, r, best={"k": 0.62, "delta_over_H": 0.195},
+                         stderr={"k": 0.01, "delta_over_H": 0.002})
+    texts = [t.get_text() for t in fig.get_axes()[0].texts]
+    assert len(texts) == 9 and f"{min(r):.3f}" in texts
+    assert_nontrivial(plot.save_figure(fig, tmp_path / "grid"))
+    params = {"H": H, "rpm": 23.44, "D_out": 0.19, "v1": 0.0, "delta_over_H": 0.195}
+    fig = plot.profiles(params, deltas=[0.18, 0.2, 0.22], delta_err=0.004)
+    (line,) = [ln for ln in fig.get_axes()[0].get_lines() if ln.get_label().startswith("calibrated")]
+    v = line.get_xdata()
+    assert v.max() == pytest.approx(23.44 * 2 * np.pi / 60 * 0.095, rel=1e-6)  # v0 at the bottom
+    assert_nontrivial(plot.save_figure(fig, tmp_path / "profiles"))
+
+
+def test_rmsd_grid_needs_two_parameters():
+    with pytest.raises(ValueError, match="exactly two parameters"):
+        plot.rmsd_grid([{"k": 0.5}, {"k": 0.6}], [0.1, 0.2])
+
+
+def test_save_figure_never_overwrites(tmp_path, maps):
+    fig = plot.bottom_fits(maps, {})
+    plot.save_figure(fig, tmp_path / "f")
+    (tmp_path / "f.png").unlink()  # only the PDF is left: still refused, nothing half-written
+    with pytest.raises(OutputExistsError):
+        plot.save_figure(fig, tmp_path / "f")
+    assert not (tmp_path / "f.png").exists()
+    plot.save_figure(fig, tmp_path / "f", force=True)
+    assert (tmp_path / "f.png").exists()
+
+
+# --------------------------------------------------------------------------- report (needs the solver)
+
+
+def browser() -> str | None:
+    for name in ("chromium", "chromium-browser", "google-chrome", "google-chrome-stable"):
+        path = shutil.which(name)
+        if path:
+            return path
+    return None
+
+
+@pytest.fixture(scope="module")
+def report_dir(tmp_path_factory):
+    pytest.importorskip("granseg._core", reason="the Rust extension is not built (maturin develop)")
+    from granseg.maps import save_map
+    from granseg.report import build_report
+
+    camp = tmp_path_factory.mktemp("campaign")
+    for i, (name, rho_h) in enumerate([("C-PP-50", 3500.0), ("G-PP-50", 2450.0), ("POM-PP-50", 1750.0)]):
+        m = fake_map(name, rho_h, 10 + i)
+        save_map(camp / f"{name}.npz", **{k: v for k, v in m.to_arrays().items()})
+    out = tmp_path_factory.mktemp("report")
+    page = build_report(camp, out, n_cells=60, max_nfev=4, progress=False, force=True)
+    return page
+
+
+def test_report_files_and_json(report_dir):
+    out = report_dir.parent
+    data = json.loads((out / "report.json").read_text())
+    cal = data["calibration"]
+    assert set(cal["best"]) == {"k", "delta_over_H"} and len(cal["grid"]) == 9
+    assert [x["name"] for x in data["experiments"]] == ["C-PP-50", "G-PP-50", "POM-PP-50"]
+    page = report_dir.read_text()
+    # every figure is embedded and has its files beside the page
+    assert page.count('<img class="fig"') == len(data["figures"]) == 7
+    for fig in data["figures"]:
+        assert (out / fig["png"]).stat().st_size > 10_000 and (out / fig["pdf"]).exists()
+    # numbers on the page come from the JSON
+    assert f"{cal['rmsd_mean']:.4f}" in page
+    for g in cal["grid"]:
+        assert f"{g['rmsd_mean']:.3f}" in page
+    with pytest.raises(OutputExistsError):
+        from granseg.report import build_report
+
+        build_report(out.parent, out)
+
+
+def test_report_in_headless_browser(report_dir, tmp_path):
+    exe = browser()
+    if exe is None:
+        pytest.skip("no headless browser: chromium / chromium-browser not on PATH "
+                    "(CI installs Debian's chromium package)")
+    flags = [exe, "--headless", "--no-sandbox", "--disable-gpu", "--hide-scrollbars",
+             "--virtual-time-budget=10000", f"--user-data-dir={tmp_path / 'profile'}"]
+    url = report_dir.resolve().as_uri()
+    dom = subprocess.run([*flags, "--dump-dom", url], capture_output=True, text=True, timeout=120)
+    loaded = re.search(r'data-figures-loaded="(\d+)/(\d+)"', dom.stdout)
+    assert loaded, f"page did not finish loading: {dom.stderr[-2000:]}"
+    assert loaded.group(1) == loaded.group(2) == "7", loaded.group(0)
+    shot = tmp_path / "report.png"
+    subprocess.run([*flags, f"--screenshot={shot}", "--window-size=1280,2400", url],
+                   capture_output=True, timeout=120, check=True)
+    img = mpimg.imread(shot)
+    assert img.shape[:2] == (2400, 1280)
+    assert np.unique((img[..., :3] * 255).astype(np.uint8).reshape(-1, 3), axis=0).shape[0] > 100
