@@ -29,6 +29,13 @@ case "$cmd" in
         granseg demo "$@"
         ;;
     test)
+        # The report test opens the HTML in headless Chromium (Debian's
+        # package); CI machines are fresh, so install it there when possible.
+        if [ -n "${CI:-}" ] && ! command -v chromium >/dev/null 2>&1 \
+            && command -v apt-get >/dev/null 2>&1 && [ "$(id -u)" = 0 ]; then
+            (apt-get update -qq && apt-get install -y -qq chromium >/dev/null) \
+                || echo "warning: could not install chromium; the browser test will be skipped" >&2
+        fi
         setup
         shift
         echo "== cargo test (pure Rust core, no Python)"

@@ -19,8 +19,9 @@ import sys
 import time
 from pathlib import Path
 
-import granseg
 import numpy as np
+
+import granseg
 from granseg._io import save_json
 from granseg.calibrate import calibrate
 from granseg.maps import Map, moving_average
@@ -77,6 +78,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--smoothing", type=int, default=5, help="moving-average width in frames")
     p.add_argument("--k", type=float, default=0.65, help="true k")
     p.add_argument("--delta-over-H", type=float, default=0.19, help="true delta/H")
+    p.add_argument("--per-experiment", action="store_true", help="also each experiment's optimum")
     p.add_argument("--json", default=None, help="write the calibration JSON + timing here")
     p.add_argument("--force", action="store_true")
     args = p.parse_args(argv)
@@ -87,7 +89,7 @@ def main(argv: list[str] | None = None) -> int:
     frames = sum(m.n_times for m in maps)
     print(f"campaign: {len(maps)} experiments, {frames} frames x 15 layers (made in {t_synth:.1f} s)")
     t0 = time.perf_counter()
-    cal = calibrate(maps, n_cells=args.n_cells)
+    cal = calibrate(maps, n_cells=args.n_cells, per_experiment=args.per_experiment)
     wall = time.perf_counter() - t0
     print(cal.table())
     rows = [f"  {k:>13}: true {truth[k]:.4f}  found {cal.best[k]:.4f} +- {cal.stderr[k]:.4f}"

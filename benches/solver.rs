@@ -7,6 +7,7 @@ use std::sync::Arc;
 
 use _core::flux::Operator;
 use _core::model::initial_condition;
+use _core::pressure_coupled;
 use _core::sweep::{sweep, RunSpec};
 use _core::{simulate, Params, Tolerances};
 use criterion::{criterion_group, criterion_main, Criterion};
@@ -73,6 +74,9 @@ fn bench_single_run(c: &mut Criterion) {
     let t_end = [0.0, 3600.0];
     c.bench_function("gpp_3600s_no_outputs_180_cells", |b| {
         b.iter(|| simulate(black_box(&p), 180, &t_end, tol).unwrap())
+    });
+    c.bench_function("gpp_3600s_pressure_coupled_faer_180_cells", |b| {
+        b.iter(|| pressure_coupled::simulate(black_box(&p), 180, &t_end, tol).unwrap())
     });
 }
 

@@ -215,8 +215,10 @@ fn moving_average<'py>(
     x: PyReadonlyArray2<'py, f64>,
     width: usize,
 ) -> PyResult<Bound<'py, PyArray2<f64>>> {
-    if width == 0 {
-        return Err(PyValueError::new_err("width must be >= 1"));
+    if width == 0 || width % 2 == 0 {
+        return Err(PyValueError::new_err(format!(
+            "width = {width} must be an odd number >= 1 (a centred window)"
+        )));
     }
     let shape = x.shape();
     let data: Vec<f64> = x.as_array().iter().copied().collect();
@@ -309,12 +311,21 @@ fn prefix(i: usize, e: SolveError) -> SolveError {
     }
 }
 
+/// Test hook: panics inside the core, to check that a Rust panic reaches
+/// Python as an exception instead of aborting the interpreter.
+#[pyfunction]
+fn _panic_for_testing(py: Python<'_>) -> PyResult<()> {
+    detached(py, || -> Result<(), SolveError> {
+        panic!("deliberate panic for the test suite")
+    })
+}
+
 /// granseg's compiled core.
 #[pymodule]
 mod _core {
     #[pymodule_export]
     use super::{
-        default_tolerances, defaults, derived, layer_means, materials, moving_average, simulate,
-        steady_state, sweep, validate, velocity_profile, SolverError,
+        _panic_for_testing, default_tolerances, defaults, derived, layer_means, materials,
+        moving_average, simulate, steady_state, sweep, validate, velocity_profile, SolverError,
     };
 }

@@ -45,7 +45,8 @@ impl LayerMap {
 }
 
 /// Centred moving average over time of an (n_t, n_cols) row-major map with
-/// window `width` (1 = none). The half-width is (width - 1) / 2 and shrinks
+/// odd window `width` (1 = none; callers reject even widths, which cannot be
+/// centred). The half-width is (width - 1) / 2 and shrinks
 /// symmetrically at the ends of the series, as DATA.md specifies.
 pub fn moving_average(map: &[f64], n_t: usize, n_cols: usize, width: usize) -> Vec<f64> {
     let half = width.saturating_sub(1) / 2;

@@ -68,6 +68,18 @@ def test_recovers_truth_within_reported_uncertainty(cal):
     assert cal.rmsd_mean < np.sqrt(0.25 / PARTICLES)
 
 
+def test_reported_uncertainty_is_calibrated_over_noise_draws():
+    """Over many noise draws (maps smoothed over 5 frames, as real maps are) the
+    scatter of the estimates matches the reported standard errors."""
+    z = []
+    for seed in range(20):
+        c = calibrate(model_maps(TRUTH, seed=100 + seed, smoothing=5), n_cells=N_CELLS, progress=False)
+        z.append([(c.best[k] - v) / c.stderr[k] for k, v in TRUTH.items()])
+    z = np.array(z)
+    assert np.all(np.abs(z.mean(axis=0)) < 0.8), z.mean(axis=0)
+    assert np.all((z.std(axis=0) > 0.6) & (z.std(axis=0) < 1.6)), z.std(axis=0)
+
+
 def test_factorial_table_layout_and_minimum(cal):
     lines = cal.table().splitlines()
     assert "Factors" in lines[0] and "RMSD" in lines[0]

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+
 from granseg.errors import FitError
 from granseg.fit import (
     beta_law,

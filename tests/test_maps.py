@@ -4,17 +4,19 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from hypothesis.extra.numpy import arrays
+
 from granseg._io import OutputExistsError
 from granseg.maps import (
+    Map,
     MapFormatError,
     load_campaign,
     load_map,
     moving_average,
     save_map,
 )
-from hypothesis import given, settings
-from hypothesis import strategies as st
-from hypothesis.extra.numpy import arrays
 
 D_P = 6e-3
 
@@ -111,6 +113,15 @@ def test_reader_names_file_and_field(tmp_path, field, value, pattern):
     with pytest.raises(MapFormatError, match=pattern) as info:
         load_map(path)
     assert str(path) in str(info.value)
+
+
+def test_map_built_in_code_is_validated():
+    f = fields()
+    f["c"] = f["c"] * 2
+    with pytest.raises(MapFormatError, match="map 'G-PP-50': field 'c'"):
+        Map(**f)
+    m = Map(**fields(), smoothing_frames=np.int64(3))
+    assert m.smoothing_frames == 3 and m.c.dtype == float
 
 
 def test_n_heavy_not_more_than_n(tmp_path):

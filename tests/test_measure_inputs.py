@@ -7,12 +7,12 @@ import json
 import cv2
 import numpy as np
 import pytest
+
 from granseg._io import OutputExistsError
 from granseg.cli import main
 from granseg.measure import BadFrameWarning, analyze, calibrate_camera
 from granseg.measure.camera import Undistorter, find_checkerboard
-from granseg.synth import render_checkerboard, render_frames
-from granseg.synth.frames import default_camera
+from granseg.synth import default_camera, render_checkerboard, render_frames
 
 SMALL = dict(heavy="ceramic", light="pp", particle_diameter_px=20, image_size=(400, 480))
 

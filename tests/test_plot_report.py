@@ -10,6 +10,7 @@ import subprocess
 import matplotlib.image as mpimg
 import numpy as np
 import pytest
+
 from granseg import plot
 from granseg._io import OutputExistsError
 from granseg.fit import fit_campaign, tanh_curve
@@ -143,7 +144,7 @@ def test_report_files_and_json(report_dir):
     with pytest.raises(OutputExistsError):
         from granseg.report import build_report
 
-        build_report(out.parent, out)
+        build_report(data["campaign"], out)  # refused before any work is done
 
 
 def test_report_in_headless_browser(report_dir, tmp_path):

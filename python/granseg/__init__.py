@@ -21,7 +21,9 @@ from __future__ import annotations
 import importlib
 from typing import Any
 
-from granseg.errors import FitError, GransegError, SolverError
+from granseg.errors import FitError as FitError
+from granseg.errors import GransegError as GransegError
+from granseg.errors import SolverError as SolverError
 
 __version__ = "0.1.0"
 

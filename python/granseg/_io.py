@@ -65,6 +65,10 @@ def atomic_path(path: str | os.PathLike, force: bool = False, suffix: str = "") 
         yield tmp_path
         if not force and dest.exists():
             raise OutputExistsError(f"{dest}: appeared while writing; not overwritten")
+        # mkstemp creates 0600; give the file the permissions a plain open() would
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(tmp_path, 0o666 & ~umask)
         os.replace(tmp_path, dest)
     finally:
         if tmp_path.exists():

@@ -142,6 +142,12 @@ class Map:
     path: Path | None = None
     extra: Mapping[str, np.ndarray] = field(default_factory=dict)
 
+    def __post_init__(self) -> None:
+        """Validate (a Map built in code obeys DATA.md like one read from a file)."""
+        source = str(self.path) if self.path is not None else f"map {self.name!r}"
+        for key, value in _validate(source, self.to_arrays()).items():
+            object.__setattr__(self, key, value)
+
     @property
     def delta_R(self) -> float:
         """Density ratio rho_h / rho_l [-]."""

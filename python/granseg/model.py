@@ -266,8 +266,8 @@ def _measured_entry(m: Any, i: int) -> tuple[np.ndarray, np.ndarray, int]:
     if c.shape[1] < 1 or not np.any(np.isfinite(c)):
         raise ValueError(f"measured[{i}].c has no finite entry")
     s = 1 if s is None else int(s)
-    if s < 1:
-        raise ValueError(f"measured[{i}].smoothing_frames = {s} must be >= 1")
+    if s < 1 or s % 2 == 0:
+        raise ValueError(f"measured[{i}].smoothing_frames = {s} must be an odd number >= 1 (a centred window)")
     return c, t, s
 
 

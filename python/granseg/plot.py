@@ -39,6 +39,7 @@ __all__ = [
     "laws",
     "rmsd_grid",
     "profiles",
+    "simulation",
 ]
 
 STYLE: dict[str, Any] = {
@@ -348,3 +349,66 @@ def profiles(params: Mapping[str, float], *, deltas: Sequence[float] = (),
         ax_v.set_ylim(0, 1)
         ax_v.legend(loc="upper right")
     return fig
+
+
+# --------------------------------------------------------------------------- one run
+
+
+def simulation(sol: Any, *, steady: tuple[np.ndarray, np.ndarray] | None = None,
+               fit: FitResult | None = None, title: str = "") -> Figure:
+    """One model run: the 15-layer map, profiles at chosen times, the bottom layer.
+
+    ``sol`` is a :class:`granseg.model.Solution`; ``steady`` optionally the
+    direct steady-state profile (z [m], c [-]); ``fit`` the tanh fit of the
+    bottom layer, drawn dashed.
+    """
+    H = sol.params["H"]
+    layers = sol.layers()
+    n_layers = layers.shape[1]
+    with style():
+        fig = _figure(7.2, 2.5)
+        axes = fig.subplots(1, 3, gridspec_kw={"width_ratios": [1.35, 0.75, 1]})
+        te = _edges(sol.t, lo=max(sol.t[0] - 0.5 * _step(sol.t), 0.0))
+        ze = np.linspace(0.0, 1.0, n_layers + 1)
+        mesh = axes[0].pcolormesh(te, ze, layers.T, vmin=0, vmax=1, cmap="viridis",
+                                  shading="flat", rasterized=True)
+        axes[0].set_xlabel(T_LABEL)
+        axes[0].set_ylabel(H_LABEL)
+        axes[0].set_title("layer means (camera view)", loc="left")
+        fig.colorbar(mesh, ax=axes[0], label=C_LABEL, pad=0.01)
+        _profile_panel(axes[1], sol, H, steady)
+        _bottom_panel(axes[2], sol.t, layers[:, 0], fit)
+        if title:
+            fig.suptitle(title, fontsize=9)
+    return fig
+
+
+def _profile_panel(ax: Any, sol: Any, H: float, steady: tuple[np.ndarray, np.ndarray] | None) -> None:
+    picks = np.unique(np.searchsorted(sol.t, np.array([0.0, 0.1, 0.3, 1.0]) * sol.t[-1]).clip(0, sol.t.size - 1))
+    for i in picks:
+        ax.plot(sol.c[i], sol.z / H, label=f"t = {sol.t[i]:.0f} s")
+    if steady is not None:
+        ax.plot(steady[1], np.asarray(steady[0]) / H, "k--", lw=1, label="steady state")
+    ax.set_xlim(-0.03, 1.03)
+    ax.set_ylim(0, 1)
+    ax.set_xlabel(C_LABEL)
+    ax.set_ylabel(H_LABEL)
+    ax.set_title("profiles", loc="left")
+    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.3), ncol=2, fontsize=6.5,
+              columnspacing=0.8, handlelength=1.2)
+
+
+def _bottom_panel(ax: Any, t: np.ndarray, bottom: np.ndarray, fit: FitResult | None) -> None:
+    ax.plot(t, bottom, color="#0072B2", label="model, layer 0")
+    if fit is not None:
+        p = fit.params
+        ax.plot(t, tanh_curve(t, p["A"], p["t0"], p["tau"]), "--", color="#D55E00", label="tanh fit")
+        ax.text(0.97, 0.52, f"A = {p['A']:.3f}\n$t_0$ = {p['t0']:.0f} s\n" + rf"$\tau$ = {p['tau']:.0f} s",
+                transform=ax.transAxes, ha="right", va="center", fontsize=7)
+    ax.set_ylim(-0.02, 1.02)
+    ax.set_xlabel(T_LABEL)
+    ax.set_ylabel(r"bottom layer $c_b$ [-]")
+    ax.set_title("bottom concentration", loc="left")
+    ax.legend(loc="lower right", fontsize=6.5)
+    if fit is not None:
+        ax.legend(loc="lower right", bbox_to_anchor=(1.0, 0.02), fontsize=6.5)

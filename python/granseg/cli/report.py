@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import logging
 from typing import Any
 
 from granseg.cli.calibrate import add_calibration_options, calibration_kwargs, dask_client
@@ -26,6 +27,7 @@ def register(subparsers: Any) -> None:
 def run(args: argparse.Namespace) -> int:
     from granseg.report import build_report
 
+    logging.getLogger("fontTools").setLevel(logging.WARNING)  # PDF font subsetting chatter
     c0 = None if args.c0 < 0 else args.c0
     with dask_client(args.dask) as client:
         page = build_report(args.campaign, args.out, fits_c0=c0, force=args.force,

@@ -11,7 +11,8 @@ correlation rho_k of each layer at lag k follows from the scatter of
 frames k apart, E[(c_raw(t+k) - c_raw(t))^2] = 2 var_raw (1 - rho_k), for
 every lag inside the averaging window. The moving average of N frames then
 leaves var_raw * (1/N^2) sum_{a,b} rho_|a-b| (N shrinks at the ends of the
-series as the average does).
+series as the average does). The smoothed share is itself noisy, which biases
+c (1 - c) low by the same factor; the estimate corrects for it.
 
 Without counts only the frame-to-frame scatter of the map itself is
 available: the variance of c(t + L) - c(t) at a lag L of one smoothing window
@@ -87,12 +88,15 @@ def _from_counts(m: Map) -> NoiseEstimate:
     n = m.n.astype(float)
     c_raw = m.c_raw if m.c_raw is not None else np.where(n > 0, m.n_heavy / np.maximum(n, 1), np.nan)
     c_hat = np.clip(m.c, 0.0, 1.0)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        var_raw = np.where(n > 0, c_hat * (1.0 - c_hat) / n, np.nan)
-    rho = _layer_rho(c_raw, var_raw, m.smoothing_frames - 1)
-    var = np.column_stack([var_raw[:, j] * _ma_factor(rho[j], m.n_times, m.smoothing_frames)
-                           for j in range(m.n_layers)])
-    return _estimate(m, var, rho[:, 0], "counts (binomial, measured frame-to-frame correlation, moving average)")
+    f = np.zeros_like(c_hat)
+    for _ in range(2):
+        # E[c_hat (1 - c_hat)] = c (1 - c) (1 - f / n) with f the averaging factor: undo that bias
+        with np.errstate(invalid="ignore", divide="ignore"):
+            var_raw = np.where(n > 0, c_hat * (1.0 - c_hat) / np.maximum(n - f, 0.5), np.nan)
+        rho = _layer_rho(c_raw, var_raw, m.smoothing_frames - 1)
+        f = np.column_stack([_ma_factor(rho[j], m.n_times, m.smoothing_frames) for j in range(m.n_layers)])
+    return _estimate(m, var_raw * f, rho[:, 0],
+                     "counts (binomial, measured frame-to-frame correlation, moving average)")
 
 
 def _from_scatter(m: Map) -> NoiseEstimate:

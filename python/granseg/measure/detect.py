@@ -14,13 +14,17 @@ keeping the best-fitting circle within 0.7 diameter.
 
 from __future__ import annotations
 
+from dataclasses import dataclass, replace
+
 import cv2
 import numpy as np
 
-__all__ = ["detect_particles", "match_templates", "refine_circles", "ring_centre", "to_gray"]
+__all__ = ["Templates", "detect_particles", "learn_templates", "match_templates", "refine_circles",
+           "ring_centre", "to_gray"]
 
 HOUGH_DIAMETER_PX = 28.0  # Hough runs at a scale where spheres are about this wide
 N_RAYS = 40
+TEMPLATE_HALF = 0.75  # template half-size [d]: the sphere, its outline and the gaps around it
 
 
 def to_gray(image: np.ndarray) -> np.ndarray:
@@ -30,30 +34,79 @@ def to_gray(image: np.ndarray) -> np.ndarray:
     return image.astype(np.float32)
 
 
-def detect_particles(image: np.ndarray, particle_diameter_px: float) -> np.ndarray:
+@dataclass(frozen=True)
+class Templates:
+    """Mean appearance of each kind of sphere, learned once and reused for every frame.
+
+    patches: per appearance group, the mean grey patch (float32, side 2 half + 1);
+    offsets: (k, 2) position of the sphere centre relative to the patch middle [px];
+    radii: (k,) sphere radius [px]; d: particle diameter [px].
+    """
+
+    patches: tuple[np.ndarray, ...]
+    offsets: np.ndarray
+    radii: np.ndarray
+    d: float
+
+    @property
+    def half(self) -> int:
+        return int(np.ceil(TEMPLATE_HALF * self.d))
+
+    def shifted(self, group: int, dy: float) -> Templates:
+        """The same templates with group ``group``'s centre moved by ``dy`` [px] (down positive)."""
+        offsets = self.offsets.copy()
+        offsets[group, 1] += dy
+        return replace(self, offsets=offsets)
+
+
+def _smooth(image: np.ndarray, d: float) -> np.ndarray:
+    return cv2.GaussianBlur(to_gray(image), (0, 0), max(0.8, d / 40))
+
+
+def learn_templates(image: np.ndarray, particle_diameter_px: float) -> Templates | None:
+    """Learn the spheres' appearances from one image (None if it shows fewer than 3 spheres).
+
+    Hough circles and blobs propose spheres, outline fits confirm them, and
+    the mean patch of each colour group of confirmed spheres becomes a
+    template.
+    """
+    d = float(particle_diameter_px)
+    smooth = _smooth(image, d)
+    candidates = _candidates(to_gray(image), d)
+    if candidates.size == 0:
+        return None
+    seeds = _select(refine_circles(smooth, candidates, d), d)
+    if len(seeds) < 3:
+        return None
+    half = int(np.ceil(TEMPLATE_HALF * d))
+    return _templates(smooth, image, seeds[:, :2], d, half)
+
+
+def detect_particles(image: np.ndarray, particle_diameter_px: float, templates: Templates | None = None,
+                     groups: bool = False) -> np.ndarray:
     """Centres and radii of the spheres in ``image``.
 
     Parameters
     ----------
     image : (H, W, 3) BGR or (H, W) grey uint8 image (undistorted).
     particle_diameter_px : expected sphere diameter [px].
+    templates : appearances from :func:`learn_templates` (learned from
+        ``image`` itself when None); reuse them across the frames of a run.
+    groups : also return the template (appearance group) index of each sphere.
 
     Returns
     -------
     (m, 4) float array: x, y [px, pixel centres at integers], radius [px] and
-    a fit score (mean outward brightness drop at the outline, grey levels/px).
+    the template correlation in [-1, 1]; (m, 5) with the group index when
+    ``groups``.
     """
     d = float(particle_diameter_px)
-    gray = to_gray(image)
-    candidates = _candidates(gray, d)
-    if candidates.size == 0:
-        return np.zeros((0, 4))
-    smooth = cv2.GaussianBlur(gray, (0, 0), max(0.8, d / 40))
-    circles = refine_circles(smooth, candidates, d)
-    seeds = _select(circles, d)
-    if len(seeds) < 3:
-        return seeds
-    return match_templates(smooth, image, seeds, d)
+    if templates is None:
+        templates = learn_templates(image, d)
+        if templates is None:
+            return np.zeros((0, 5 if groups else 4))
+    found = _correlation_peaks(_smooth(image, d), templates, d)
+    return found if groups else found[:, :4]
 
 
 def _candidates(gray: np.ndarray, d: float) -> np.ndarray:
@@ -193,48 +246,36 @@ def _select(circles: np.ndarray, d: float) -> np.ndarray:
 # --------------------------------------------------------------------------- templates
 
 
-def match_templates(smooth: np.ndarray, image: np.ndarray, seeds: np.ndarray, d: float,
-                    rounds: int = 1) -> np.ndarray:
+def match_templates(smooth: np.ndarray, image: np.ndarray, seeds: np.ndarray, d: float) -> np.ndarray:
     """Find spheres as matches of their own mean appearance, learned from ``seeds``.
 
     Spheres of one material under fixed lamps look alike: the mean of many
-    colour patches shows one sphere against averaged surroundings, and a
-    circle of about the nominal diameter fitted to its outline fixes where
-    the template's centre is. The grey image is correlated with the mean
-    appearance of each of two appearance groups (told apart by colour: the
-    two materials); each local correlation peak is a sphere, placed to
-    sub-pixel accuracy. ``smooth`` is the blurred grey image (float32),
-    ``image`` the BGR image.
-    Returns (m, 4): x, y, radius [px], correlation in [-1, 1].
+    patches shows one sphere against averaged surroundings, and a circle of
+    about the nominal diameter fitted to its outline fixes where the
+    template's centre is. The grey image ``smooth`` (blurred, float32) is
+    correlated with the mean appearance of each of two appearance groups
+    (told apart by colour in the BGR ``image``: the two materials); each
+    local correlation peak is a sphere, placed to sub-pixel accuracy.
+    Returns (m, 5): x, y, radius [px], correlation in [-1, 1], group.
     """
-    half = int(np.ceil(0.75 * d))
-    colour = smooth[..., None]
-    centres = seeds[:, :2]
-    found = seeds
-    for _ in range(rounds):
-        templates = _templates(colour, image, centres, d, half)
-        found = _correlation_peaks(colour, templates, d, half)
-        if len(found) < 3:
-            return found
-        centres = found[:, :2]
-    return found
+    templates = _templates(smooth, image, seeds[:, :2], d, int(np.ceil(0.75 * d)))
+    return _correlation_peaks(smooth, templates, d)
 
 
-def _templates(colour, image, centres, d, half) -> list[tuple[np.ndarray, np.ndarray, float]]:
-    """Mean colour patch per appearance group, with the offset of its centre and its radius."""
+def _templates(smooth, image, centres, d, half) -> Templates:
+    """Mean grey patch per appearance group, with the offset of its centre and its radius."""
     size = 2 * half + 1
-    patches = np.stack([cv2.getRectSubPix(colour, (size, size), (float(x), float(y)))
+    patches = np.stack([cv2.getRectSubPix(smooth, (size, size), (float(x), float(y)))
                         for x, y in centres])
-    if patches.ndim == 3:
-        patches = patches[..., None]
     groups = _appearance_groups(image, centres, d)
-    out = []
+    means, offsets, radii = [], [], []
     for g in np.unique(groups):
-        mean = patches[groups == g].mean(axis=0).astype(np.float32)
-        gray = mean.mean(axis=2) if mean.shape[2] > 1 else mean[..., 0]
-        x, y, r = ring_centre(np.ascontiguousarray(gray, dtype=np.float32), d)
-        out.append((mean, np.array([x - half, y - half]), r))
-    return out
+        mean = np.ascontiguousarray(patches[groups == g].mean(axis=0), dtype=np.float32)
+        x, y, r = ring_centre(mean, d)
+        means.append(mean)
+        offsets.append([x - half, y - half])
+        radii.append(r)
+    return Templates(tuple(means), np.array(offsets, dtype=float), np.array(radii, dtype=float), float(d))
 
 
 def ring_centre(patch: np.ndarray, d: float) -> tuple[float, float, float]:
@@ -292,13 +333,14 @@ def _appearance_groups(image: np.ndarray, centres: np.ndarray, d: float) -> np.n
     return labels
 
 
-def _correlation_peaks(colour, templates, d, half) -> np.ndarray:
-    """Local maxima of the best template correlation, refined to sub-pixel."""
+def _correlation_peaks(smooth: np.ndarray, templates: Templates, d: float) -> np.ndarray:
+    """Local maxima of the best template correlation, refined to sub-pixel: (m, 5)."""
+    half = templates.half
     pad = half + 2
-    padded = cv2.copyMakeBorder(colour[..., 0], pad, pad, pad, pad, cv2.BORDER_REPLICATE)
-    maps = [cv2.matchTemplate(padded, t[..., 0], cv2.TM_CCOEFF_NORMED) for t, _, _ in templates]
-    best = np.argmax(np.stack(maps), axis=0)
-    score = np.max(np.stack(maps), axis=0)
+    padded = cv2.copyMakeBorder(smooth, pad, pad, pad, pad, cv2.BORDER_REPLICATE)
+    maps = np.stack([cv2.matchTemplate(padded, t, cv2.TM_CCOEFF_NORMED) for t in templates.patches])
+    best = np.argmax(maps, axis=0) if len(maps) > 1 else np.zeros(maps.shape[1:], dtype=int)
+    score = maps.max(axis=0)
     size = max(3, int(0.6 * d) | 1)
     peak = (score >= cv2.dilate(score, np.ones((size, size), np.uint8))) & (score > 0.2)
     ys, xs = np.nonzero(peak)
@@ -307,8 +349,8 @@ def _correlation_peaks(colour, templates, d, half) -> np.ndarray:
     fx = _parabola(score[ys, xs - 1], score[ys, xs], score[ys, xs + 1])
     fy = _parabola(score[ys - 1, xs], score[ys, xs], score[ys + 1, xs])
     group = best[ys, xs]
-    offset = np.array([t[1] for t in templates])[group]
-    radius = np.array([t[2] for t in templates])[group]
+    offset = templates.offsets[group]
+    radius = templates.radii[group]
     # top-left of the template in padded coordinates -> centre in image pixels
     x = xs + fx + half - pad + offset[:, 0]
     y = ys + fy + half - pad + offset[:, 1]
@@ -335,4 +377,4 @@ def _keep_spheres(found: np.ndarray, d: float) -> np.ndarray:
     for g in np.unique(out[:, 4]):
         mine = out[:, 4] == g
         keep |= mine & (out[:, 3] > 0.5 * np.median(out[mine, 3]))
-    return out[keep, :4]
+    return out[keep]

@@ -3,20 +3,22 @@
 from __future__ import annotations
 
 import logging
+import multiprocessing
 import os
 import warnings
 from collections import deque
-from concurrent.futures import Future, ThreadPoolExecutor
+from concurrent.futures import Future, ProcessPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import cv2
 import numpy as np
 from tqdm import tqdm
 
 from granseg.measure.camera import Undistorter
 from granseg.measure.classify import classify_by_ranges, colour_features, learn_classes
-from granseg.measure.detect import detect_particles
+from granseg.measure.detect import Templates, detect_particles, learn_templates
 from granseg.measure.experiment import Experiment, load_experiment
 from granseg.measure.layers import N_LAYERS, in_window, layer_counts
 from granseg.measure.sources import BadFrame, FrameDirectory, VideoFrames, open_frames
@@ -92,7 +94,7 @@ def analyze(
         spread over the run (first and last included).
     force : replace existing output files.
     save : write the map (False: only return it).
-    workers : threads decoding and analysing frames (default: all cores).
+    workers : processes decoding and analysing frames (default: all cores).
     progress : show a progress bar.
 
     Returns an :class:`Analysis`. A frame that cannot be read or shows no
@@ -137,7 +139,11 @@ def _preview_indices(n: int, count: int) -> set[int]:
 
 
 class _FrameWorker:
-    """Undistort, crop, detect and describe the spheres of one frame."""
+    """Undistort, crop, detect and describe the spheres of one frame.
+
+    ``templates`` are the spheres' appearances, learned once per run (from the
+    first readable frame) and only matched afterwards.
+    """
 
     def __init__(self, exp: Experiment, image_size: tuple[int, int]):
         d = exp.particle_diameter_px
@@ -146,9 +152,14 @@ class _FrameWorker:
         self.crop = (int(np.floor(x0)) - m, int(np.floor(y0)) - m, int(np.ceil(x1)) + m, int(np.ceil(y1)) + m)
         self.exp, self.size = exp, image_size
         self.undistort = Undistorter(exp.camera_matrix, exp.dist_coeffs, image_size, self.crop)
+        self.templates: Templates | None = None
         if not self.undistort.inside_image(exp.window):
             raise ValueError(f"{exp.path}: field 'window': {list(exp.window)} is outside the image "
                              f"({image_size[0]} x {image_size[1]} px) once undistorted")
+
+    def learn(self, image: np.ndarray) -> None:
+        """Learn the spheres' appearances from one frame (kept None if it shows too few spheres)."""
+        self.templates = learn_templates(self.undistort(image), self.exp.particle_diameter_px)
 
     def __call__(self, name: str, image: np.ndarray) -> tuple[FrameSpheres, np.ndarray]:
         if image.ndim != 3 or (image.shape[1], image.shape[0]) != self.size:
@@ -156,7 +167,7 @@ class _FrameWorker:
                            f"{self.size[0]} x {self.size[1]}")
         crop = self.undistort(image)
         d = self.exp.particle_diameter_px
-        found = detect_particles(crop, d)
+        found = detect_particles(crop, d, templates=self.templates)
         feats = colour_features(crop, found[:, :2], d)
         x, y = found[:, 0] + self.crop[0], found[:, 1] + self.crop[1]
         inside = in_window(x, y, self.exp.window)
@@ -165,22 +176,54 @@ class _FrameWorker:
         return FrameSpheres(x[inside], y[inside], found[inside, 2], feats[inside]), crop
 
 
+# Per-process state of the worker pool (set by _init_process).
+_PROCESS: dict[str, Any] = {}
+
+
+def _init_process(source, worker) -> None:
+    # One OpenCV thread per process: the processes already fill the cores.
+    cv2.setNumThreads(1)
+    _PROCESS["source"], _PROCESS["worker"] = source, worker
+
+
+def _in_process(i: int, image: np.ndarray | None, keep_crop: bool):
+    got = _one_frame(_PROCESS["source"], _PROCESS["worker"], i, image)
+    if isinstance(got, BadFrame):
+        return got
+    return got[0], (got[1] if keep_crop else None)
+
+
 def _detect_all(source, exp, workers, progress, keep):
     n_workers = max(1, workers or os.cpu_count() or 1)
     first = _first_image(source)
     worker = _FrameWorker(exp, (first.shape[1], first.shape[0]))
+    worker.learn(first)
     results: dict[int, Any] = {}
     crops: dict[int, np.ndarray] = {}
+    n_workers = min(n_workers, len(source))
+    # Frames of a directory are decoded inside the worker processes; video
+    # frames are decoded here, in stream order, and sent to them.
+    pool = (ProcessPoolExecutor(n_workers, mp_context=multiprocessing.get_context("fork"),
+                                initializer=_init_process, initargs=(source, worker))
+            if n_workers > 1 else None)
     bar = tqdm(total=len(source), desc="analyze", unit="frame", disable=not progress)
     pending: deque[tuple[int, Future]] = deque()
-    with ThreadPoolExecutor(n_workers) as pool:
+    try:
         for i, image in source.frames():
-            pending.append((i, pool.submit(_one_frame, source, worker, i, image)))
-            while len(pending) > 2 * n_workers:
-                _collect(pending.popleft(), results, crops, keep, bar)
+            if pool is None:
+                got = _one_frame(source, worker, i, image)
+                _store(i, got if isinstance(got, BadFrame) else (got[0], got[1] if i in keep else None),
+                       results, crops, bar)
+                continue
+            pending.append((i, pool.submit(_in_process, i, image, i in keep)))
+            while len(pending) > 3 * n_workers:
+                _collect(pending.popleft(), results, crops, bar)
         while pending:
-            _collect(pending.popleft(), results, crops, keep, bar)
-    bar.close()
+            _collect(pending.popleft(), results, crops, bar)
+    finally:
+        if pool is not None:
+            pool.shutdown(cancel_futures=True)
+        bar.close()
     names = list(source.names)
     _check_video_length(source, names, results)
     spheres, bad = [], []
@@ -222,14 +265,17 @@ def _one_frame(source, worker, i, image):
         return exc
 
 
-def _collect(item, results, crops, keep, bar) -> None:
+def _collect(item, results, crops, bar) -> None:
     i, fut = item
-    got = fut.result()
+    _store(i, fut.result(), results, crops, bar)
+
+
+def _store(i, got, results, crops, bar) -> None:
     if isinstance(got, BadFrame):
         results[i] = got
     else:
         results[i] = got[0]
-        if i in keep:
+        if got[1] is not None:
             crops[i] = got[1]
     bar.update(1)
 
@@ -289,12 +335,9 @@ def _assemble(spheres, exp, fps, smooth, names, bad) -> Analysis:
 
 def _particle_diameter_m() -> float:
     """D_p [m] from the model's parameters (MODEL.md), the one source of truth."""
-    try:
-        import granseg
+    import granseg
 
-        return float(granseg.defaults()["D_p"])
-    except (ImportError, AttributeError, KeyError):
-        return 6.0e-3  # MODEL.md D_p, used only when the compiled model is not installed
+    return float(granseg.defaults()["D_p"])
 
 
 def _save(result: Analysis, out: Path, force: bool, fps: float) -> Path:

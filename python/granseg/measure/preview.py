@@ -15,6 +15,7 @@ __all__ = ["draw_preview", "write_previews"]
 HEAVY_BGR = (40, 110, 255)  # orange
 LIGHT_BGR = (255, 200, 40)  # sky blue
 PANEL_PX = 230
+HEADER_PX = 54  # band above the image for the frame's caption
 
 
 def write_previews(directory: Path, result: Any, crops: dict[int, np.ndarray], force: bool) -> list[Path]:
@@ -55,7 +56,8 @@ def draw_preview(crop: np.ndarray, result: Any, i: int) -> np.ndarray:
         colour = HEAVY_BGR if h else LIGHT_BGR
         cv2.circle(img, to_px(x, y), int(round(r * scale * 0.92)), colour, 2, cv2.LINE_AA)
         cv2.circle(img, to_px(x, y), 2, colour, -1, cv2.LINE_AA)
-    return np.hstack([img, _panel(img.shape[0], result, i, to_px(0, y0)[1], to_px(0, y1)[1])])
+    body = np.hstack([img, _panel(img.shape[0], result, i, to_px(0, y0)[1], to_px(0, y1)[1])])
+    return np.vstack([_header(body.shape[1], result, i), body])
 
 
 def _crop_origin(exp) -> tuple[int, int]:
@@ -63,21 +65,29 @@ def _crop_origin(exp) -> tuple[int, int]:
     return int(np.floor(exp.window[0])) - m, int(np.floor(exp.window[1])) - m
 
 
+def _header(width: int, result: Any, i: int) -> np.ndarray:
+    """Band above the image: frame name, time, total count, class legend (clear of the layer labels)."""
+    band = np.full((HEADER_PX, width, 3), 250, np.uint8)
+    font = cv2.FONT_HERSHEY_SIMPLEX
+    dark = (30, 30, 30)
+    cv2.putText(band, f"{result.frame_names[i]}   t = {result.t[i]:.1f} s   n = {int(result.n[i].sum())}",
+                (8, 20), font, 0.5, dark, 1, cv2.LINE_AA)
+    cv2.putText(band, "heavy", (8, 44), font, 0.45, HEAVY_BGR, 2, cv2.LINE_AA)
+    cv2.putText(band, "light", (70, 44), font, 0.45, LIGHT_BGR, 2, cv2.LINE_AA)
+    cv2.putText(band, f"{result.experiment.heavy} / {result.experiment.light}", (130, 44), font, 0.45, dark,
+                1, cv2.LINE_AA)
+    return band
+
+
 def _panel(height: int, result: Any, i: int, top: int, bottom: int) -> np.ndarray:
     """Side panel: per-layer counts n, heavy n_h and c_raw, aligned with the layers."""
     panel = np.full((height, PANEL_PX, 3), 250, np.uint8)
     font = cv2.FONT_HERSHEY_SIMPLEX
-    text = lambda s, y, c=(30, 30, 30), k=0.45: cv2.putText(panel, s, (8, y), font, k, c, 1, cv2.LINE_AA)  # noqa: E731
-    name = result.frame_names[i]
-    text(f"{name}", 18, k=0.45)
-    text(f"t = {result.t[i]:.1f} s   n = {int(result.n[i].sum())}", 38)
-    cv2.putText(panel, "heavy", (8, 58), font, 0.45, HEAVY_BGR, 2, cv2.LINE_AA)
-    cv2.putText(panel, "light", (70, 58), font, 0.45, LIGHT_BGR, 2, cv2.LINE_AA)
-    text(f"{result.experiment.heavy} / {result.experiment.light}", 78, k=0.4)
     step = (bottom - top) / N_LAYERS
     for j in range(N_LAYERS):
         y = int(bottom - (j + 0.5) * step + 5)
         n, nh, c = result.n[i, j], result.n_heavy[i, j], result.c_raw[i, j]
         share = "  -  " if not np.isfinite(c) else f"{c:4.2f}"
-        text(f"L{j:<2d} n={n:<3d} h={nh:<3d} c={share}", y, k=0.42)
+        cv2.putText(panel, f"L{j:<2d} n={n:<3d} h={nh:<3d} c={share}", (8, y), font, 0.42, (30, 30, 30), 1,
+                    cv2.LINE_AA)
     return panel

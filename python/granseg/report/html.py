@@ -149,9 +149,11 @@ def _laws(d: Mapping[str, Any]) -> str:
 def _figures(d: Mapping[str, Any], out: Path) -> str:
     parts = ["<h2>Figures</h2>"]
     for n, fig in enumerate(d["figures"], 1):
-        data = base64.b64encode((out / fig["png"]).read_bytes()).decode("ascii")
+        raw = (out / fig["png"]).read_bytes()
+        width = int.from_bytes(raw[16:20], "big") // 2  # PNG IHDR width; shown at 2x density
+        data = base64.b64encode(raw).decode("ascii")
         parts.append(
-            f'<figure id="{_e(fig["id"])}"><img class="fig" alt="{_e(fig["caption"])}" '
+            f'<figure id="{_e(fig["id"])}"><img class="fig" width="{width}" alt="{_e(fig["caption"])}" '
             f'src="data:image/png;base64,{data}"><figcaption>Figure {n}. {_e(fig["caption"])} '
             f'(<a href="{_e(fig["pdf"])}">PDF</a>, <a href="{_e(fig["png"])}">PNG</a>)</figcaption></figure>')
     return "".join(parts)

@@ -10,9 +10,15 @@ from __future__ import annotations
 
 from typing import Any
 
-from granseg.synth.frames import MATERIAL_LOOKS, RenderedFrames, render_checkerboard, render_frames
+from granseg.synth.frames import (
+    MATERIAL_LOOKS,
+    RenderedFrames,
+    default_camera,
+    render_checkerboard,
+    render_frames,
+)
 
-__all__ = ["MATERIAL_LOOKS", "RenderedFrames", "campaign", "render_checkerboard", "render_frames"]
+__all__ = ["MATERIAL_LOOKS", "RenderedFrames", "campaign", "default_camera", "render_checkerboard", "render_frames"]
 
 
 def campaign(*args: Any, **kwargs: Any) -> Any:

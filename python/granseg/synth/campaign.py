@@ -57,8 +57,8 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["EFFECTS", "ROUGHNESS", "TABLE1", "Condition", "campaign", "random_conditions",
-           "frame_rate", "fill_mass"]
+__all__ = ["EFFECTS", "EFFECT_RANGES", "ROUGHNESS", "TABLE1", "Condition", "campaign",
+           "fill_mass", "frame_rate", "random_conditions", "random_effect"]
 
 #: Relative surface roughness of each material (for the material_friction effect) [-].
 ROUGHNESS: dict[str, float] = {"steel": -1.0, "ceramic": 1.0, "glass": -0.4, "POM": 0.6, "PP": 0.2}
@@ -377,3 +377,31 @@ def _write(out: Path, arrays: list[dict[str, Any]], save_map: Any, force: bool, 
     for a, p in zip(arrays, targets, strict=False):
         save_map(p, force=force, **a)
     save_json(out / "campaign.json", truth, force=force)
+
+
+#: Strength ranges of the hidden-effect draws (:func:`random_effect`): sizes a
+#: 16-experiment campaign at the paper's noise can resolve. Units as ``strength``.
+EFFECT_RANGES: dict[str, tuple[float, float]] = {
+    "load_dependent_shear_band": (0.3, 0.7),
+    "evolving_shear_band": (0.3, 0.6),      # |delta_drift|, sign drawn
+    "sidewall_excess": (0.3, 0.8),
+    "material_friction": (0.3, 0.6),
+    "spin_up_delay": (60.0, 240.0),         # s
+    "diffusivity_scale": (0.5, 1.0),        # |log factor|, sign drawn
+    "misclassification": (0.08, 0.15),
+}
+
+
+def random_effect(effect: str, seed: int | None = None) -> tuple[float, dict[str, float]]:
+    """A seeded random ``(strength, effect_params)`` for ``effect`` within :data:`EFFECT_RANGES`."""
+    if effect not in EFFECT_RANGES:
+        raise ValueError(f"effect = {effect!r}: no strength range; known: {', '.join(EFFECT_RANGES)}")
+    rng = np.random.default_rng(seed)
+    lo, hi = EFFECT_RANGES[effect]
+    s = float(rng.uniform(lo, hi))
+    sign = 1.0 if rng.random() < 0.5 else -1.0
+    if effect == "evolving_shear_band":
+        return sign * s, {"drift_time": float(rng.uniform(300.0, 900.0))}
+    if effect == "diffusivity_scale":
+        return float(math.exp(sign * s)), {}
+    return s, {}

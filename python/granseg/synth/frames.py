@@ -29,7 +29,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-__all__ = ["MATERIAL_LOOKS", "RenderedFrames", "render_frames", "render_checkerboard"]
+__all__ = ["MATERIAL_LOOKS", "RenderedFrames", "default_camera", "render_frames", "render_checkerboard"]
 
 # How each material looks. colour: B, G, R in [0, 1]; kd/ks: diffuse and
 # specular weights; shininess: Blinn-Phong exponent; metal: mirror-like
@@ -56,7 +56,9 @@ LIGHTINGS: dict[str, list[tuple[float, float, float, float]]] = {
     "diffuse": [(0.0, -0.3, 0.95, 0.55), (-0.5, 0.2, 0.84, 0.3), (0.5, 0.2, 0.84, 0.3)],
 }
 
-ROW_PITCH = 0.87  # vertical distance of packed rows, in particle diameters
+PACKING_FRACTION = 0.80  # area share of the wall covered by sphere outlines (hexagonal: 0.907)
+RELAX_SWEEPS = 1500  # relaxation sweeps building the initial packing
+SHEAR_SWEEPS = 200  # relaxation sweeps after each frame's shear step
 
 
 @dataclass
@@ -281,42 +283,95 @@ def _camera_effects(ideal: np.ndarray, sensor_map: np.ndarray, blur: float, nois
 
 
 class _Bed:
-    """Rows of spheres against the wall; positions scroll, types persist."""
+    """A random dense packing of the wall-layer sphere centres; it shears, types persist.
+
+    Monodisperse spheres against a flat wall are not a perfect crystal: the
+    centres form a jammed, mostly disordered disk packing (hexagonal patches,
+    rows only next to the bottom plate and the lid, which order the grains
+    touching them). It is made by placing the spheres at random and pushing
+    overlapping pairs apart (a few hundred relaxation sweeps, walls at the
+    lid and plate, periodic along the ring). Each frame every sphere moves
+    sideways with the wall-adjacent velocity profile at its height, and a few
+    relaxation sweeps remove the overlaps the shear created, so neighbours
+    rearrange a little, as in a sheared bed.
+    """
 
     def __init__(self, win, d, n_layers, box, heavy_look, light_look, rng):
         self.win, self.d, self.n_layers = win, d, n_layers
         ox, _, cw, _ = box
         self.x_lo, self.length = ox - d, cw + 2 * d
         spread = max(heavy_look["size_spread"], light_look["size_spread"])
-        x0, y, diam, row = [], [], [], []
-        n_rows = int(np.floor((n_layers - 1) / ROW_PITCH)) + 1
-        for r in range(n_rows):
-            xs, ds = self._row(d, spread, rng)
-            yc = win[3] - d / 2 - r * ROW_PITCH * d + rng.normal(0, 0.015 * d, xs.size)
-            x0.append(xs), diam.append(ds), row.append(np.full(xs.size, r))
-            y.append(np.clip(yc, win[1] + ds / 2, win[3] - ds / 2))
-        self.x0, self.y = np.concatenate(x0), np.concatenate(y)
-        self.diam, self.row = np.concatenate(diam), np.concatenate(row)
-        self.heavy = np.zeros(self.x0.size, dtype=bool)
-        frac = (win[3] - self.y) / (win[3] - win[1]) * n_layers
-        self.layer = np.clip(np.floor(frac).astype(int), 0, n_layers - 1)
-        self.shade = rng.normal(1.0, 0.035, self.x0.size)
+        height = win[3] - win[1]
+        count = int(round(PACKING_FRACTION * self.length * height / (np.pi * d * d / 4)))
+        self.diam = d * np.clip(rng.normal(1.0, spread, count), 1 - 3 * spread, 1 + 3 * spread)
+        self.x0 = rng.uniform(0, self.length, count)
+        self.y = rng.uniform(win[1] + self.diam / 2, win[3] - self.diam / 2)
+        self._relax(RELAX_SWEEPS, rng, shake=True)
+        self.heavy = np.zeros(count, dtype=bool)
+        self.shade = rng.normal(1.0, 0.035, count)
+        self.rng = rng
 
-    def _row(self, d, spread, rng):
-        """One row: diameters and gap-separated centres along the ring (periodic)."""
-        count = int(self.length / d)
-        ds = d * np.clip(rng.normal(1.0, spread, count), 1 - 3 * spread, 1 + 3 * spread)
-        gaps = rng.uniform(0.0, 0.06 * d, count)
-        pitch = (ds + np.roll(ds, 1)) / 2 + gaps
-        pitch *= self.length / pitch.sum()  # close the ring exactly
-        xs = (np.cumsum(pitch) + rng.uniform(0, d)) % self.length
-        return xs, ds
+    @property
+    def layer(self) -> np.ndarray:
+        frac = (self.win[3] - self.y) / (self.win[3] - self.win[1]) * self.n_layers
+        return np.clip(np.floor(frac).astype(int), 0, self.n_layers - 1)
+
+    def _relax(self, sweeps: int, rng, shake: bool = False, mobility: np.ndarray | None = None) -> None:
+        """Push overlapping spheres apart until no pair overlaps by more than 0.2 % of d.
+
+        ``mobility`` (per sphere, > 0) shares each push: the more mobile sphere
+        of a pair gives way (sheared grains yield to the still ones above).
+        """
+        from scipy.spatial import cKDTree
+
+        r = self.diam / 2
+        y_lo, y_hi = self.win[1] + r, self.win[3] - r
+        box = (self.length, 4 * (self.win[3] - self.win[1]) + 4 * self.d)
+        pairs = None
+        for sweep in range(sweeps):
+            if sweep % 10 == 0:  # neighbour list with a skin, rebuilt every 10 sweeps
+                pts = np.column_stack([self.x0 % self.length, self.y - self.win[1] + self.d])
+                pairs = cKDTree(pts, boxsize=box).query_pairs(1.3 * self.diam.max(), output_type="ndarray").T
+            i, j = pairs
+            dx = self.x0[j] - self.x0[i]
+            dx -= self.length * np.rint(dx / self.length)
+            dy = self.y[j] - self.y[i]
+            dist = np.hypot(dx, dy)
+            overlap = r[i] + r[j] - dist
+            hit = overlap > 0.002 * self.d
+            if not hit.any():
+                break
+            i, j, dx, dy, dist, overlap = i[hit], j[hit], dx[hit], dy[hit], dist[hit], overlap[hit]
+            dist = np.maximum(dist, 1e-6)
+            # push each sphere of the pair half the overlap (and a little more, to converge)
+            mob = np.ones_like(self.y) if mobility is None else mobility
+            share_i = mob[i] / (mob[i] + mob[j])
+            ux, uy = dx / dist * 1.1 * overlap, dy / dist * 1.1 * overlap
+            mx, my = np.zeros_like(self.x0), np.zeros_like(self.y)
+            np.add.at(mx, i, -ux * share_i), np.add.at(mx, j, ux * (1 - share_i))
+            np.add.at(my, i, -uy * share_i), np.add.at(my, j, uy * (1 - share_i))
+            if shake and sweep < sweeps // 2:  # shake early on, so the packing does not lock into a crystal
+                mx += rng.normal(0, 0.01 * self.d, mx.size)
+                my += rng.normal(0, 0.01 * self.d, my.size)
+            self.x0 = (self.x0 + mx) % self.length
+            self.y = np.clip(self.y + my, y_lo, y_hi)
 
     def positions(self, frame: int, shift: float, delta_over_H: float) -> np.ndarray:
-        """x [canvas-independent undistorted px] of every sphere at ``frame``."""
-        height = self.win[3] - self.win[1]
-        speed = shift * np.exp(-(self.win[3] - self.y) / (delta_over_H * height))
-        return self.x_lo + (self.x0 + speed * frame) % self.length
+        """x [undistorted px] of every sphere at ``frame`` (frames come in order; the bed shears)."""
+        if frame > 0:
+            height = self.win[3] - self.win[1]
+            profile = np.exp(-(self.win[3] - self.y) / (delta_over_H * height))
+            before = self.x0 + shift * profile
+            self.x0 = before % self.length
+            for _ in range(3):
+                # grains make room for each other, but each height keeps its mean speed
+                self._relax(SHEAR_SWEEPS, self.rng, mobility=profile + 1e-3)
+                moved = (self.x0 - before + self.length / 2) % self.length - self.length / 2
+                band = np.clip(((self.y - self.win[1]) / (0.5 * self.d)).astype(int), 0, None)
+                mean = np.bincount(band, moved) / np.maximum(np.bincount(band), 1)
+                self.x0 = (self.x0 - mean[band]) % self.length
+            self._relax(SHEAR_SWEEPS, self.rng, mobility=profile + 1e-3)
+        return self.x_lo + self.x0
 
     def in_window(self, x: np.ndarray) -> np.ndarray:
         x0, y0, x1, y1 = self.win
@@ -325,9 +380,10 @@ class _Bed:
     def assign_types(self, x: np.ndarray, c_row: np.ndarray, rng) -> None:
         """Flip as few spheres as possible so each layer's heavy share is c_row."""
         inside = self.in_window(x)
+        layer = self.layer
         for j in range(self.n_layers):
             for group in (inside, ~inside):
-                idx = np.flatnonzero(group & (self.layer == j))
+                idx = np.flatnonzero(group & (layer == j))
                 target = int(np.rint(c_row[j] * idx.size))
                 self._flip(idx, target, rng)
 
@@ -340,8 +396,9 @@ class _Bed:
 
     def layer_counts(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         inside = self.in_window(x)
-        n = np.bincount(self.layer[inside], minlength=self.n_layers)
-        nh = np.bincount(self.layer[inside & self.heavy], minlength=self.n_layers)
+        layer = self.layer
+        n = np.bincount(layer[inside], minlength=self.n_layers)
+        nh = np.bincount(layer[inside & self.heavy], minlength=self.n_layers)
         return n, nh
 
     def truth(self, x: np.ndarray) -> np.ndarray:

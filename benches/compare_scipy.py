@@ -1,0 +1,148 @@
+"""Side-by-side solver benchmarks behind BENCHMARKS.md (issue 2).
+
+    python benches/compare_scipy.py [--repeats 15] [--out benches/results/solver.md]
+
+1. One G-PP run (c0 = 0.5, 3600 s, outputs every 2 s, 180 cells): granseg
+   against the scipy method-of-lines reference (tests/reference_mol.py,
+   solve_ivp BDF with a banded Jacobian sparsity), each at the loosest
+   tolerance of a ladder whose 15-layer map is within 1e-3 of a refined
+   solution (granseg at 1440 cells, rtol 1e-8). Best-of-N wall times, one
+   process, one run: the ratio is what counts on a noisy machine.
+2. The paper's 3 x 3 factorial for three cases (27 runs) as one sweep, with
+   1 and 2 threads.
+3. Peak memory (max RSS) of a fresh process that runs that sweep.
+"""
+
+from __future__ import annotations
+
+import argparse
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "tests"))
+
+import granseg  # noqa: E402
+from reference_mol import Reference  # noqa: E402
+
+T = np.arange(0, 3601, 2.0)
+GPP = dict(rho_h=2450.0, rho_l=946.0, c0=0.5)
+TARGET = 1e-3
+PAPER_CASES = [dict(rho_h=3500.0, rho_l=946.0, c0=0.5), dict(rho_h=2450.0, rho_l=946.0, c0=0.5),
+               dict(rho_h=2450.0, rho_l=1750.0, c0=0.5)]
+PAPER_GRID = {"k": [0.5, 0.6, 0.7], "delta_over_H": [0.18, 0.20, 0.22]}
+
+
+def best_time(fn, repeats: int) -> float:
+    best = np.inf
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        fn()
+        best = min(best, time.perf_counter() - t0)
+    return best
+
+
+def loosest(ladder, error_of):
+    """First (loosest) setting of the ladder whose error meets TARGET."""
+    for setting in ladder:
+        err = error_of(setting)
+        if err <= TARGET:
+            return setting, err
+    raise RuntimeError("no setting of the ladder meets the accuracy target")
+
+
+def single_run(repeats: int) -> dict:
+    ref = granseg.simulate(**GPP, t=T, n_cells=1440, rtol=1e-8, atol=1e-10).layers()
+    ours_ladder = [(3e-4, 3e-5), (1e-4, 1e-5), (3e-5, 3e-6), (1e-5, 1e-6)]
+    (rt, at), err_ours = loosest(
+        ours_ladder, lambda s: np.abs(granseg.simulate(**GPP, t=T, rtol=s[0], atol=s[1]).layers() - ref).max())
+    mol = Reference(GPP["rho_h"], GPP["rho_l"], GPP["c0"], n=180)
+    sp_ladder = [(1e-3, 1e-5), (1e-3, 3e-6), (1e-3, 1e-6), (3e-4, 1e-6), (1e-4, 1e-7)]
+    (srt, sat), err_sp = loosest(sp_ladder, lambda s: np.abs(mol.layers(mol.solve(T, s[0], s[1])) - ref).max())
+    mol.n_rhs = 0
+    mol.solve(T, srt, sat)
+    sp_rhs = mol.n_rhs
+    t_ours = best_time(lambda: granseg.simulate(**GPP, t=T, rtol=rt, atol=at), repeats)
+    t_sp = best_time(lambda: mol.solve(T, srt, sat), max(3, repeats // 3))
+    stats = granseg.simulate(**GPP, t=T, rtol=rt, atol=at).stats
+    default_err = np.abs(granseg.simulate(**GPP, t=T).layers() - ref).max()
+    t_default = best_time(lambda: granseg.simulate(**GPP, t=T), repeats)
+    return dict(ours=(rt, at, err_ours, t_ours, stats), scipy=(srt, sat, err_sp, t_sp, sp_rhs),
+                default=(default_err, t_default))
+
+
+def paper_sweep(repeats: int) -> dict:
+    t = {}
+    for threads in (1, 2):
+        t[threads] = best_time(lambda th=threads: granseg.sweep(PAPER_GRID, cases=PAPER_CASES, t=T, threads=th),
+                               repeats)
+    return t
+
+
+MEMORY_SNIPPET = """
+import resource, numpy as np, granseg
+from benches_compare import PAPER_GRID, PAPER_CASES, T
+before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+res = granseg.sweep(PAPER_GRID, cases=PAPER_CASES, t=T)
+after = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+print(before / 1024, after / 1024, res.layers.nbytes / 2**20)
+"""
+
+
+def peak_memory() -> tuple[float, float, float]:
+    code = MEMORY_SNIPPET.replace("from benches_compare import PAPER_GRID, PAPER_CASES, T",
+                                  f"PAPER_GRID = {PAPER_GRID!r}\nPAPER_CASES = {PAPER_CASES!r}\n"
+                                  "T = np.arange(0, 3601, 2.0)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    before, after, arrays = (float(x) for x in out.stdout.split())
+    return before, after, arrays
+
+
+def report(single: dict, sweep_t: dict, mem: tuple[float, float, float]) -> str:
+    rt, at, e1, t1, stats = single["ours"]
+    srt, sat, e2, t2, sp_rhs = single["scipy"]
+    d_err, d_t = single["default"]
+    lines = [
+        "| solver (G-PP, 3600 s, 1801 outputs, 180 cells) | tolerances | layer error | wall time | ratio |",
+        "|---|---|---|---|---|",
+        f"| scipy solve_ivp BDF, banded Jacobian sparsity | rtol {srt:g}, atol {sat:g} | {e2:.1e} "
+        f"| {t2 * 1e3:.1f} ms ({sp_rhs} RHS evaluations) | 1 |",
+        f"| granseg (ESDIRK3, Rust) | rtol {rt:g}, atol {at:g} | {e1:.1e} | {t1 * 1e3:.2f} ms "
+        f"({stats['steps']} steps, {stats['rhs_evals']} flux evaluations) | **{t2 / t1:.0f}x** |",
+        f"| granseg, default tolerances | rtol {granseg.model.RTOL:g}, atol {granseg.model.ATOL:g} | {d_err:.1e} "
+        f"| {d_t * 1e3:.2f} ms | {t2 / d_t:.0f}x |",
+        "",
+        "| paper factorial, 27 runs, one sweep | wall time |",
+        "|---|---|",
+        f"| 1 thread | {sweep_t[1] * 1e3:.0f} ms |",
+        f"| 2 threads | {sweep_t[2] * 1e3:.0f} ms (speed-up {sweep_t[1] / sweep_t[2]:.2f}x) |",
+        "",
+        f"Peak memory (max RSS) of a fresh process running the 27-run sweep: {mem[1]:.0f} MB "
+        f"({mem[0]:.0f} MB after importing granseg and numpy; result arrays {mem[2]:.1f} MB).",
+    ]
+    return "\n".join(lines) + "\n"
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--repeats", type=int, default=15)
+    ap.add_argument("--out", type=Path, help="also write the markdown table here (atomic, overwrites)")
+    args = ap.parse_args()
+    single = single_run(args.repeats)
+    sweep_t = paper_sweep(max(3, args.repeats // 3))
+    mem = peak_memory()
+    text = report(single, sweep_t, mem)
+    print(text)
+    if args.out:
+        from granseg._io import atomic_write
+
+        atomic_write(args.out, lambda p: p.write_text(text), force=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,139 @@
+"""``granseg simulate``: one run of the model, a summary and a figure."""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["register"]
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "simulate",
+        help="run the segregation-diffusion model once",
+        description="Solve the model of MODEL.md for one experiment, print a summary "
+        "and write a figure (PNG + PDF). Densities in kg/m^3, times in s.",
+    )
+    mat = p.add_argument_group("materials (names from MODEL.md or densities)")
+    mat.add_argument("--heavy", default="glass", help="heavy material name (default glass)")
+    mat.add_argument("--light", default="PP", help="light material name (default PP)")
+    mat.add_argument("--rho-h", type=float, help="heavy density, kg/m^3 (overrides --heavy)")
+    mat.add_argument("--rho-l", type=float, help="light density, kg/m^3 (overrides --light)")
+    p.add_argument("--c0", type=float, default=0.5, help="overall heavy fraction (default 0.5)")
+    p.add_argument("--k", type=float, help="friction correction k (default 0.70)")
+    p.add_argument("--delta-over-H", type=float, dest="delta_over_H", help="shear band delta/H (default 0.18)")
+    p.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
+                   help="any other model parameter, e.g. --set b=0.05 (repeatable)")
+    p.add_argument("--t-end", type=float, default=3600.0, help="end time, s (default 3600)")
+    p.add_argument("--dt", type=float, default=2.0, help="output interval, s (default 2)")
+    p.add_argument("--n-cells", type=int, default=180, help="finite-volume cells (default 180)")
+    p.add_argument("--rtol", type=float, help="relative tolerance of the stepper")
+    p.add_argument("--atol", type=float, help="absolute tolerance of the stepper")
+    p.add_argument("--out", default="granseg-simulation",
+                   help="figure path without extension; writes OUT.png and OUT.pdf")
+    p.add_argument("--npz", help="also write the 15-layer model map as a map .npz (DATA.md)")
+    p.add_argument("--force", action="store_true", help="overwrite existing output files")
+    p.set_defaults(func=run)
+
+
+def _density(name: str | None, value: float | None, which: str) -> float:
+    from granseg.model import MATERIALS
+
+    if value is not None:
+        return value
+    lookup = {k.lower(): v for k, v in MATERIALS.items()}
+    if name is None or name.lower() not in lookup:
+        raise ValueError(f"--{which}: unknown material {name!r}; known: {', '.join(MATERIALS)}")
+    return lookup[name.lower()]
+
+
+def _extra(pairs: list[str]) -> dict[str, float]:
+    out = {}
+    for item in pairs:
+        name, sep, value = item.partition("=")
+        if not sep:
+            raise ValueError(f"--set {item!r}: expected NAME=VALUE")
+        try:
+            out[name.strip()] = float(value)
+        except ValueError:
+            raise ValueError(f"--set {item!r}: {value!r} is not a number") from None
+    return out
+
+
+def run(args: argparse.Namespace) -> int:
+    import granseg
+    from granseg import fit, plot
+
+    params = {"rho_h": _density(args.heavy, args.rho_h, "heavy"),
+              "rho_l": _density(args.light, args.rho_l, "light"), "c0": args.c0}
+    for key in ("k", "delta_over_H"):
+        if getattr(args, key) is not None:
+            params[key] = getattr(args, key)
+    params.update(_extra(args.set))
+    if not (args.t_end > 0 and args.dt > 0):
+        raise ValueError("--t-end and --dt must be > 0 s")
+    t = np.arange(0.0, args.t_end + 0.5 * args.dt, args.dt)
+    stem = Path(args.out)
+    outputs = [stem.with_name(stem.name + ext) for ext in (".png", ".pdf")]
+    for p in outputs + ([Path(args.npz)] if args.npz else []):
+        granseg._io.check_writable(p, args.force)
+
+    start = time.perf_counter()
+    sol = granseg.simulate(t=t, n_cells=args.n_cells, rtol=args.rtol, atol=args.atol, **params)
+    elapsed = time.perf_counter() - start
+    steady = granseg.steady_state(n_cells=args.n_cells, **params)
+    layers = sol.layers()
+    bottom = fit.fit_tanh(sol.t, layers[:, 0])
+    _summary(args, sol, layers, steady, bottom, elapsed)
+
+    p = sol.params
+    title = (f"{args.heavy if args.rho_h is None else ''}/{args.light if args.rho_l is None else ''} "
+             rf"$\delta_R$ = {p['rho_h'] / p['rho_l']:.2f}, $c_0$ = {p['c0']:.2f}, "
+             rf"k = {p['k']:.2f}, $\delta/H$ = {p['delta_over_H']:.3f}").lstrip("/ ")
+    fig = plot.simulation(sol, steady=steady, fit=bottom if bottom.converged else None, title=title)
+    written = plot.save_figure(fig, stem, force=args.force)
+    if args.npz:
+        _write_npz(args, sol, layers)
+        written.append(Path(args.npz))
+    print("wrote " + ", ".join(str(w) for w in written))
+    return 0
+
+
+def _summary(args, sol, layers, steady, bottom, elapsed) -> None:
+    p, s = sol.params, sol.stats
+    drift = np.max(np.abs(sol.depth_mean - sol.depth_mean[0])) / sol.depth_mean[0]
+    print(f"granseg simulate: delta_R = {p['rho_h'] / p['rho_l']:.3f}, c0 = {p['c0']:.3f}, "
+          f"k = {p['k']:.3f}, delta/H = {p['delta_over_H']:.3f}")
+    print(f"  solved {sol.t.size} output times x {sol.z.size} cells in {elapsed * 1e3:.1f} ms "
+          f"({s['steps']} steps, {s['rejected']} rejected, {s['rhs_evals']} flux evaluations)")
+    print(f"  mass drift {drift:.1e} (relative), c in [{sol.c.min():.3g}, {sol.c.max():.3g}]")
+    if bottom.converged:
+        b = bottom.params
+        print(f"  bottom layer: A = {b['A']:.3f}, t0 = {b['t0']:.0f} s, tau = {b['tau']:.0f} s (tanh fit)")
+    z, c = steady
+    print(f"  steady state (direct solve): bottom c = {c[0]:.3f}, top c = {c[-1]:.3f}; "
+          f"run at t = {sol.t[-1]:.0f} s: bottom {sol.c[-1, 0]:.3f}, top {sol.c[-1, -1]:.3f}")
+    picks = np.unique(np.searchsorted(sol.t, np.array([0.0, 0.1, 0.3, 1.0]) * sol.t[-1]).clip(0, sol.t.size - 1))
+    print("  layer means, top layer first:   " + "  ".join(f"t={sol.t[i]:>6.0f}s" for i in picks))
+    for j in range(layers.shape[1] - 1, -1, -1):
+        print(f"    layer {j:2d}                      " + "  ".join(f"{layers[i, j]:>8.3f}" for i in picks))
+
+
+def _write_npz(args, sol, layers) -> None:
+    from granseg.maps import save_map
+
+    p = sol.params
+    n = layers.shape[1]
+    save_map(args.npz, c=layers, t=sol.t, z=(np.arange(n) + 0.5) * p["H"] / n,
+             name="simulation", heavy=args.heavy, light=args.light, rho_h=p["rho_h"],
+             rho_l=p["rho_l"], c0=p["c0"],
+             M_g=p["phi_s"] * granseg_area(p) * p["H"] * (p["rho_h"] * p["c0"] + p["rho_l"] * (1 - p["c0"])),
+             M_w=p["M_w"], force=args.force)
+
+
+def granseg_area(p: dict[str, float]) -> float:
+    return float(np.pi * (p["D_out"] ** 2 - p["D_in"] ** 2) / 4)

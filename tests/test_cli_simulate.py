@@ -1,0 +1,44 @@
+"""``granseg simulate`` as a user runs it."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from granseg.cli import main
+from granseg.maps import load_map
+
+
+def test_simulate_prints_a_summary_and_writes_figure_and_map(tmp_path, capsys):
+    out = tmp_path / "run"
+    npz = tmp_path / "run.npz"
+    code = main(["simulate", "--heavy", "ceramic", "--light", "PP", "--c0", "0.75",
+                 "--t-end", "600", "--dt", "5", "--n-cells", "90", "--out", str(out), "--npz", str(npz)])
+    assert code == 0
+    text = capsys.readouterr().out
+    assert "delta_R = 3.700" in text and "mass drift" in text and "layer 14" in text
+    for ext in (".png", ".pdf"):
+        assert (tmp_path / f"run{ext}").stat().st_size > 10_000
+    m = load_map(npz)
+    assert m.c.shape == (121, 15) and abs(m.delta_R - 3500 / 946) < 1e-12
+    assert np.all((m.c >= 0) & (m.c <= 1))
+
+
+def test_simulate_refuses_to_overwrite_and_names_bad_input(tmp_path, capsys):
+    out = tmp_path / "run"
+    (tmp_path / "run.png").write_bytes(b"keep me")
+    assert main(["simulate", "--t-end", "10", "--out", str(out)]) == 2
+    assert (tmp_path / "run.png").read_bytes() == b"keep me"
+    assert "exists" in capsys.readouterr().err
+    assert main(["simulate", "--heavy", "gold", "--out", str(tmp_path / "x")]) == 2
+    assert "gold" in capsys.readouterr().err
+    assert main(["simulate", "--set", "k=-1", "--t-end", "10", "--out", str(tmp_path / "y")]) == 2
+    assert "parameter k" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("argv", [["--help"], ["simulate", "--help"]])
+def test_help_works(argv, capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(argv)
+    assert exc.value.code == 0
+    assert "granseg" in capsys.readouterr().out

@@ -1,0 +1,56 @@
+"""Hidden-effect tests: a campaign with one effect hidden in it must be diagnosed correctly.
+
+Strengths and conditions are drawn with seeds (granseg.synth.campaign.random_effect /
+random_conditions). The default run holds a fast subset at reduced size (10
+random conditions); the full matrix (all causes, 16 conditions, several seeds)
+is marked slow and summarised by benches/bench_diagnose_matrix.py.
+"""
+
+from __future__ import annotations
+
+import pytest
+
+from granseg.diagnose import diagnose
+from granseg.diagnose.catalogue import names
+from granseg.synth.campaign import campaign, random_conditions, random_effect
+
+
+def _run(effect: str | None, seed: int, n: int | None):
+    conds = None if n is None else random_conditions(n, seed)
+    strength, extra = (None, {}) if effect is None else random_effect(effect, seed)
+    maps = campaign(conditions=conds, effect=effect, strength=strength, effect_params=extra, seed=seed)
+    return diagnose(maps, progress=False).result
+
+
+@pytest.mark.parametrize("effect", ["load_dependent_shear_band", "sidewall_excess", "spin_up_delay"])
+def test_hidden_effect_is_named_with_a_held_out_gain(effect):
+    r = _run(effect, seed=11, n=10)
+    assert r["cause"] == effect, r["decision"]
+    assert r["gain"]["rmsd_held_out"] > 0
+    assert r["extended"]["model"] == effect
+
+
+def test_baseline_only_campaign_is_called_none():
+    r = _run(None, seed=12, n=10)
+    assert r["cause"] == "none", r["decision"]
+    assert r["explained"] is True and r["extended"] is None
+
+
+def test_effect_outside_the_catalogue_is_not_passed_off_as_explained():
+    r = _run("misclassification", seed=13, n=10)
+    assert r["cause"] == "unexplained" or r["explained"] is False, r["decision"]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("seed", [3001, 3002])
+@pytest.mark.parametrize("effect", names())
+def test_every_cause_on_16_random_conditions(effect, seed):
+    r = _run(effect, seed=seed, n=16)
+    assert r["cause"] == effect, r["decision"]
+    assert r["gain"]["rmsd_held_out"] > 0
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("seed", [3101, 3102, 3103])
+def test_null_on_table1(seed):
+    assert _run(None, seed=seed, n=None)["cause"] == "none"
