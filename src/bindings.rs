@@ -68,6 +68,7 @@ fn stats_dict<'py>(py: Python<'py>, s: &Stats) -> PyResult<Bound<'py, PyDict>> {
     d.set_item("rhs_evals", s.rhs_evals)?;
     d.set_item("jacobians", s.jacobians)?;
     d.set_item("clipped", s.clipped)?;
+    d.set_item("max_clip", s.max_clip)?;
     Ok(d)
 }
 
