@@ -180,6 +180,18 @@ class _FrameWorker:
 _PROCESS: dict[str, Any] = {}
 
 
+def _process_context():
+    """Worker processes forked from a clean server process.
+
+    Not plain fork: a process forked after OpenCV started its thread pool can
+    deadlock in OpenCV. The server (started once per Python process) imports
+    the pipeline once, so each pool starts quickly.
+    """
+    ctx = multiprocessing.get_context("forkserver")
+    ctx.set_forkserver_preload(["granseg.measure.pipeline"])
+    return ctx
+
+
 def _init_process(source, worker) -> None:
     # One OpenCV thread per process: the processes already fill the cores.
     cv2.setNumThreads(1)
@@ -203,7 +215,7 @@ def _detect_all(source, exp, workers, progress, keep):
     n_workers = min(n_workers, len(source))
     # Frames of a directory are decoded inside the worker processes; video
     # frames are decoded here, in stream order, and sent to them.
-    pool = (ProcessPoolExecutor(n_workers, mp_context=multiprocessing.get_context("fork"),
+    pool = (ProcessPoolExecutor(n_workers, mp_context=_process_context(),
                                 initializer=_init_process, initargs=(source, worker))
             if n_workers > 1 else None)
     bar = tqdm(total=len(source), desc="analyze", unit="frame", disable=not progress)
