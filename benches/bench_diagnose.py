@@ -17,7 +17,7 @@ import time
 from pathlib import Path
 
 from granseg.diagnose import diagnose
-from granseg.synth.campaign import campaign
+from granseg.synth.virtual import campaign
 
 BUDGET_S = 120.0
 

@@ -2,7 +2,7 @@
 
 For every catalogue cause (plus the null campaign and the out-of-catalogue
 ``misclassification`` effect) campaigns are generated with seeded random
-strengths (granseg.synth.campaign.random_effect) and seeded random
+strengths (granseg.synth.virtual.random_effect) and seeded random
 conditions (14 of the 18 pair x c0 combinations; the paper's 16 conditions for
 every third seed), diagnosed, and the named cause tabulated.
 
@@ -21,7 +21,7 @@ from pathlib import Path
 
 from granseg.diagnose import diagnose
 from granseg.diagnose.catalogue import names
-from granseg.synth.campaign import campaign, random_conditions, random_effect
+from granseg.synth.virtual import campaign, random_conditions, random_effect
 
 TRUTHS = ["none", *names(), "misclassification"]
 

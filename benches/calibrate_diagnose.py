@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from granseg.diagnose import diagnose
-from granseg.synth.campaign import campaign, random_conditions
+from granseg.synth.virtual import campaign, random_conditions
 
 
 def one(seed: int) -> dict:

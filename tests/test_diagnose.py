@@ -12,7 +12,7 @@ from granseg.diagnose import catalogue, selection
 from granseg.diagnose.fitting import Data, fit, loo_params, loo_predict
 from granseg.diagnose.noise import noise_floor
 from granseg.maps import Map, moving_average
-from granseg.synth.campaign import Condition, campaign, random_conditions
+from granseg.synth.virtual import Condition, campaign, random_conditions
 
 COND = [Condition("steel", "POM", 0.5, 5.73), Condition("glass", "PP", 0.5, 2.04),
         Condition("ceramic", "PP", 0.75, 3.43), Condition("steel", "PP", 0.75, 7.30),

@@ -1,6 +1,6 @@
 """Hidden-effect tests: a campaign with one effect hidden in it must be diagnosed correctly.
 
-Strengths and conditions are drawn with seeds (granseg.synth.campaign.random_effect /
+Strengths and conditions are drawn with seeds (granseg.synth.virtual.random_effect /
 random_conditions). The default run holds a fast subset at reduced size (10
 random conditions); the full matrix (all causes, 16 conditions, several seeds)
 is marked slow and summarised by benches/bench_diagnose_matrix.py.
@@ -12,7 +12,7 @@ import pytest
 
 from granseg.diagnose import diagnose
 from granseg.diagnose.catalogue import names
-from granseg.synth.campaign import campaign, random_conditions, random_effect
+from granseg.synth.virtual import campaign, random_conditions, random_effect
 
 
 def _run(effect: str | None, seed: int, n: int | None):

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from granseg.maps import load_campaign, moving_average
-from granseg.synth.campaign import (
+from granseg.synth.virtual import (
     TABLE1,
     Condition,
     campaign,

@@ -19,7 +19,8 @@ from dataclasses import dataclass, replace
 import cv2
 import numpy as np
 
-__all__ = ["Templates", "detect_particles", "learn_templates", "match_templates", "refine_circles",
+__all__ = ["Templates", "detect_particles", "learn_templates", "match_templates", "outline_centres",
+           "refine_circles",
            "ring_centre", "to_gray"]
 
 HOUGH_DIAMETER_PX = 28.0  # Hough runs at a scale where spheres are about this wide
@@ -105,7 +106,9 @@ def detect_particles(image: np.ndarray, particle_diameter_px: float, templates: 
         templates = learn_templates(image, d)
         if templates is None:
             return np.zeros((0, 5 if groups else 4))
-    found = _correlation_peaks(_smooth(image, d), templates, d)
+    smooth = _smooth(image, d)
+    found = _correlation_peaks(smooth, templates, d)
+    found[:, :2] = outline_centres(smooth, found[:, :2], found[:, 2], d)
     return found if groups else found[:, :4]
 
 
@@ -241,6 +244,67 @@ def _select(circles: np.ndarray, d: float) -> np.ndarray:
     out = circles[kept]
     weak = out[:, 3] * out[:, 4] < 0.25 * np.median(out[:, 3] * out[:, 4])
     return out[~weak][:, :4]
+
+
+# --------------------------------------------------------------------------- final centres
+
+
+def outline_centres(smooth: np.ndarray, centres: np.ndarray, radii: np.ndarray, d: float,
+                    iterations: int = 3, n_rays: int = 48) -> np.ndarray:
+    """Centres (m, 2) of circles of the known radii fitted to the spheres' outlines.
+
+    Template peaks and brightness are shifted by shading and highlights, the
+    silhouette is not. Along ``n_rays`` rays from each approximate centre the
+    outline is the sharpest outward brightness drop within 0.86-1.16 radii:
+    the drop per 0.5 px minus its mean over 0.15 d around, so that the smooth
+    fall of shading towards a sphere's dark side does not count, only the
+    step at its edge. A robust least-squares fit of a circle of the sphere's
+    known radius to those edge points moves the centre (clipped to 3 px per
+    iteration); rays whose edge disagrees are left out.
+    """
+    c = np.asarray(centres, dtype=float).copy()
+    if len(c) == 0:
+        return c
+    radius = np.asarray(radii, dtype=float)
+    theta = np.linspace(0, 2 * np.pi, n_rays, endpoint=False)
+    ray = np.column_stack([np.cos(theta), np.sin(theta)])
+    r_max = float(radius.max())
+    steps = np.arange(0.65 * r_max, 1.4 * r_max, 0.5)
+    mid = steps[1:-1]
+    window = max(3, int(0.3 * d) | 1)  # 0.15 d in 0.5 px samples
+    kernel = np.ones(window, np.float32) / window
+    a = ray[None].repeat(len(c), 0)
+    for _ in range(iterations):
+        px = c[:, 0, None, None] + steps[None, None, :] * ray[None, :, 0, None]
+        py = c[:, 1, None, None] + steps[None, None, :] * ray[None, :, 1, None]
+        m, k, s = px.shape
+        prof = cv2.remap(smooth, px.reshape(m * k, s).astype(np.float32), py.reshape(m * k, s).astype(np.float32),
+                         cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        drop = (prof[:, :-2] - prof[:, 2:]) / 2.0
+        sharp = drop - cv2.filter2D(drop, -1, kernel[None, :], borderType=cv2.BORDER_REPLICATE)
+        sharp = sharp.reshape(m, k, s - 2)
+        allowed = (mid[None, None, :] >= 0.86 * radius[:, None, None]) & (mid[None, None, :] <= 1.16 * radius[:, None, None])
+        sharp = np.where(allowed, sharp, -np.inf)
+        best = np.argmax(sharp, axis=2)
+        peak = np.take_along_axis(sharp, best[..., None], 2)[..., 0]
+        lo = np.take_along_axis(sharp, np.clip(best - 1, 0, s - 3)[..., None], 2)[..., 0]
+        hi = np.take_along_axis(sharp, np.clip(best + 1, 0, s - 3)[..., None], 2)[..., 0]
+        ok = np.isfinite(peak) & (peak > 0)
+        lo, hi = np.where(np.isfinite(lo), lo, peak), np.where(np.isfinite(hi), hi, peak)
+        denom = np.where(ok, lo - 2 * peak + hi, -1.0)
+        frac = np.where(ok & (np.abs(denom) > 1e-6), 0.5 * (lo - hi) / np.where(denom == 0, -1.0, denom), 0.0)
+        edge = mid[best] + 0.5 * np.clip(np.nan_to_num(frac), -0.5, 0.5) - radius[:, None]
+        w = ok.astype(float)
+        for _ in range(3):
+            aw = a * w[..., None]
+            ata = np.einsum("mki,mkj->mij", aw, a) + 1e-6 * np.eye(2)
+            shift = np.linalg.solve(ata, np.einsum("mki,mk->mi", aw, edge)[..., None])[..., 0]
+            resid = np.abs(edge - np.einsum("mki,mi->mk", a, shift))
+            scale = np.maximum(0.7, 2.5 * np.median(resid, axis=1, keepdims=True))
+            w = (ok & (resid < scale)).astype(float)
+        good = w.sum(axis=1) >= 6
+        c[good] += np.clip(shift[good], -3.0, 3.0)
+    return c
 
 
 # --------------------------------------------------------------------------- templates

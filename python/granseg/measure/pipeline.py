@@ -3,11 +3,10 @@
 from __future__ import annotations
 
 import logging
-import multiprocessing
 import os
 import warnings
 from collections import deque
-from concurrent.futures import Future, ProcessPoolExecutor
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -94,7 +93,7 @@ def analyze(
         spread over the run (first and last included).
     force : replace existing output files.
     save : write the map (False: only return it).
-    workers : processes decoding and analysing frames (default: all cores).
+    workers : threads decoding and analysing frames (default: all cores).
     progress : show a progress bar.
 
     Returns an :class:`Analysis`. A frame that cannot be read or shows no
@@ -176,30 +175,8 @@ class _FrameWorker:
         return FrameSpheres(x[inside], y[inside], found[inside, 2], feats[inside]), crop
 
 
-# Per-process state of the worker pool (set by _init_process).
-_PROCESS: dict[str, Any] = {}
-
-
-def _process_context():
-    """Worker processes forked from a clean server process.
-
-    Not plain fork: a process forked after OpenCV started its thread pool can
-    deadlock in OpenCV. The server (started once per Python process) imports
-    the pipeline once, so each pool starts quickly.
-    """
-    ctx = multiprocessing.get_context("forkserver")
-    ctx.set_forkserver_preload(["granseg.measure.pipeline"])
-    return ctx
-
-
-def _init_process(source, worker) -> None:
-    # One OpenCV thread per process: the processes already fill the cores.
-    cv2.setNumThreads(1)
-    _PROCESS["source"], _PROCESS["worker"] = source, worker
-
-
-def _in_process(i: int, image: np.ndarray | None, keep_crop: bool):
-    got = _one_frame(_PROCESS["source"], _PROCESS["worker"], i, image)
+def _in_thread(source, worker, i: int, image: np.ndarray | None, keep_crop: bool):
+    got = _one_frame(source, worker, i, image)
     if isinstance(got, BadFrame):
         return got
     return got[0], (got[1] if keep_crop else None)
@@ -209,15 +186,18 @@ def _detect_all(source, exp, workers, progress, keep):
     n_workers = max(1, workers or os.cpu_count() or 1)
     first = _first_image(source)
     worker = _FrameWorker(exp, (first.shape[1], first.shape[0]))
-    worker.learn(first)
+    if os.environ.get('GS_LEARN_ONCE', '1') == '1':
+        worker.learn(first)
     results: dict[int, Any] = {}
     crops: dict[int, np.ndarray] = {}
     n_workers = min(n_workers, len(source))
-    # Frames of a directory are decoded inside the worker processes; video
-    # frames are decoded here, in stream order, and sent to them.
-    pool = (ProcessPoolExecutor(n_workers, mp_context=_process_context(),
-                                initializer=_init_process, initargs=(source, worker))
-            if n_workers > 1 else None)
+    # Frames of a directory are decoded inside the worker threads (OpenCV and
+    # numpy release the GIL); video frames are decoded here, in stream order.
+    pool = ThreadPoolExecutor(n_workers) if n_workers > 1 else None
+    # One OpenCV thread per worker: the workers already fill the cores.
+    cv_threads = cv2.getNumThreads()
+    if pool is not None:
+        cv2.setNumThreads(1)
     bar = tqdm(total=len(source), desc="analyze", unit="frame", disable=not progress)
     pending: deque[tuple[int, Future]] = deque()
     try:
@@ -227,7 +207,7 @@ def _detect_all(source, exp, workers, progress, keep):
                 _store(i, got if isinstance(got, BadFrame) else (got[0], got[1] if i in keep else None),
                        results, crops, bar)
                 continue
-            pending.append((i, pool.submit(_in_process, i, image, i in keep)))
+            pending.append((i, pool.submit(_in_thread, source, worker, i, image, i in keep)))
             while len(pending) > 3 * n_workers:
                 _collect(pending.popleft(), results, crops, bar)
         while pending:
@@ -235,6 +215,7 @@ def _detect_all(source, exp, workers, progress, keep):
     finally:
         if pool is not None:
             pool.shutdown(cancel_futures=True)
+            cv2.setNumThreads(cv_threads)
         bar.close()
     names = list(source.names)
     _check_video_length(source, names, results)

@@ -3,7 +3,7 @@
 ``render_frames(c, ...)`` draws side-wall frames whose heavy share per layer
 follows the map ``c`` (see :mod:`granseg.synth.frames`);
 ``render_checkerboard(...)`` draws a calibration target through a lens;
-``campaign(...)`` builds a set of virtual experiments (granseg.synth.campaign).
+``campaign(...)`` builds a set of virtual experiments (granseg.synth.virtual).
 """
 
 from __future__ import annotations
@@ -18,11 +18,20 @@ from granseg.synth.frames import (
     render_frames,
 )
 
-__all__ = ["MATERIAL_LOOKS", "RenderedFrames", "campaign", "default_camera", "render_checkerboard", "render_frames"]
+__all__ = [
+    "MATERIAL_LOOKS", "TABLE1", "Condition", "RenderedFrames", "campaign", "default_camera",
+    "random_conditions", "random_effect", "render_checkerboard", "render_frames",
+]
 
 
-def campaign(*args: Any, **kwargs: Any) -> Any:
-    """Virtual experiments; see :func:`granseg.synth.campaign.campaign` (loaded on first use)."""
-    from granseg.synth.campaign import campaign as _campaign
+_VIRTUAL = ("campaign", "Condition", "TABLE1", "random_conditions", "random_effect")
 
-    return _campaign(*args, **kwargs)
+
+def __getattr__(name: str) -> Any:
+    # virtual experiments need the compiled solver; load them on first use so
+    # that rendering frames does not
+    if name in _VIRTUAL:
+        from granseg.synth import virtual
+
+        return getattr(virtual, name)
+    raise AttributeError(f"module 'granseg.synth' has no attribute {name!r}")
