@@ -115,16 +115,16 @@ impl Operator {
         for i in 1..n - 1 {
             self.slope[i] = van_leer(c[i] - c[i - 1], c[i + 1] - c[i]);
         }
-        // Hot loop: one sqrt and three divisions per face (mu(I) written as
-        // mu_min + dmu I / (I0 + I)); constants per face are precomputed.
+        // Hot loop: one sqrt and two divisions per face. With s = I0 + I,
+        // mu = (mu_min s + dmu I) / s, so a = seg_num s / (P (mu_min s + dmu I)).
         let (mu_min, dmu, i0) = (self.p.mu_min, self.p.mu_2 - self.p.mu_min, self.p.i0);
         let (rho_l, drho) = (self.p.rho_l, self.p.rho_h - self.p.rho_l);
         for f in 0..n - 1 {
             let rho = rho_l + drho * 0.5 * (c[f] + c[f + 1]);
-            let inv_p = 1.0 / self.pressure[f];
-            let inertial = self.inertia[f] * (rho * inv_p).sqrt();
-            let mu = mu_min + dmu * inertial / (i0 + inertial);
-            let a = self.seg_num[f] * inv_p / mu;
+            let pres = self.pressure[f];
+            let inertial = self.inertia[f] * (rho / pres).sqrt();
+            let s = i0 + inertial;
+            let a = self.seg_num[f] * s / (pres * (mu_min * s + dmu * inertial));
             let up = c[f + 1] - 0.5 * self.slope[f + 1];
             let dn = c[f] + 0.5 * self.slope[f];
             self.a[f] = a;

@@ -25,7 +25,7 @@ use faer::{Mat, Par};
 use crate::error::SolveError;
 use crate::flux::Operator;
 use crate::params::Params;
-use crate::stepper::{integrate_with, NewtonMatrix, Stats, Tolerances};
+use crate::stepper::{simulate_with, validate_run, NewtonMatrix, Stats, Tolerances};
 
 /// Newton matrix of the augmented (c, P) system, factorised by faer.
 pub struct PressureCoupled {
@@ -187,12 +187,8 @@ pub fn simulate(
     tol: Tolerances,
 ) -> Result<(Vec<f64>, Stats), SolveError> {
     p.validate()?;
-    let matrix = PressureCoupled::new(p, n_cells.max(2))?;
-    let mut c = vec![0.0; t_out.len() * n_cells];
-    let stats = integrate_with(p, n_cells, t_out, tol, matrix, |k, prof| {
-        c[k * n_cells..(k + 1) * n_cells].copy_from_slice(prof);
-    })?;
-    Ok((c, stats))
+    validate_run(n_cells, t_out, &tol)?;
+    simulate_with(p, n_cells, t_out, tol, PressureCoupled::new(p, n_cells)?)
 }
 
 #[cfg(test)]

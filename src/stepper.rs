@@ -151,6 +151,40 @@ impl NewtonMatrix for Tridiagonal {
     }
 }
 
+/// Where the stepper writes the profile at each output time: it fills the
+/// buffer `profile(k)` returns (in place, no copy), then calls `done(k)`.
+pub trait Output {
+    fn profile(&mut self, k: usize) -> &mut [f64];
+    fn done(&mut self, _k: usize) {}
+}
+
+/// Adapter: hand each profile to a closure (used for layer means).
+struct CallbackOutput<F: FnMut(usize, &[f64])> {
+    buf: Vec<f64>,
+    sink: F,
+}
+
+impl<F: FnMut(usize, &[f64])> Output for CallbackOutput<F> {
+    fn profile(&mut self, _k: usize) -> &mut [f64] {
+        &mut self.buf
+    }
+    fn done(&mut self, k: usize) {
+        (self.sink)(k, &self.buf);
+    }
+}
+
+/// Full profiles, (n_t * n_cells) row-major.
+struct FullOutput {
+    n: usize,
+    c: Vec<f64>,
+}
+
+impl Output for FullOutput {
+    fn profile(&mut self, k: usize) -> &mut [f64] {
+        &mut self.c[k * self.n..(k + 1) * self.n]
+    }
+}
+
 /// Validate what a run is given besides the parameters.
 pub fn validate_run(n_cells: usize, t_out: &[f64], tol: &Tolerances) -> Result<(), SolveError> {
     if n_cells < 15 {
@@ -248,7 +282,6 @@ struct Work<M: NewtonMatrix> {
     delta: Vec<f64>,
     err: Vec<f64>,
     scale: Vec<f64>,
-    out: Vec<f64>,
     herm: [Vec<f64>; 3],
     /// start and size of the last accepted step (for the stage predictor)
     y_prev: Vec<f64>,
@@ -270,7 +303,6 @@ impl<M: NewtonMatrix> Work<M> {
             delta: z(),
             err: z(),
             scale: z(),
-            out: z(),
             herm: [z(), z(), z()],
             y_prev: z(),
             h_prev: None,
@@ -469,11 +501,16 @@ fn hermite_coefficients(
     }
 }
 
+/// Evaluate the interpolant into `out`; returns whether it stayed in [0, 1].
 #[inline]
-fn hermite_eval(out: &mut [f64], y0: &[f64], d: &[Vec<f64>; 3], theta: f64) {
+fn hermite_eval(out: &mut [f64], y0: &[f64], d: &[Vec<f64>; 3], theta: f64) -> bool {
+    let mut outside = false;
     for i in 0..out.len() {
-        out[i] = y0[i] + theta * (d[0][i] + theta * (d[1][i] + theta * d[2][i]));
+        let v = y0[i] + theta * (d[0][i] + theta * (d[1][i] + theta * d[2][i]));
+        out[i] = v;
+        outside |= (v < 0.0) | (v > 1.0);
     }
+    !outside
 }
 
 fn initial_step<M: NewtonMatrix>(w: &Work<M>, tol: &Tolerances, t_end: f64) -> f64 {
@@ -497,7 +534,11 @@ pub fn integrate(
     tol: Tolerances,
     sink: impl FnMut(usize, &[f64]),
 ) -> Result<Stats, SolveError> {
-    integrate_with(p, n_cells, t_out, tol, Tridiagonal::new(n_cells), sink)
+    let mut out = CallbackOutput {
+        buf: vec![0.0; n_cells],
+        sink,
+    };
+    integrate_with(p, n_cells, t_out, tol, Tridiagonal::new(n_cells), &mut out)
 }
 
 /// `integrate` with a chosen Newton matrix (see `pressure_coupled`).
@@ -507,7 +548,7 @@ pub fn integrate_with<M: NewtonMatrix>(
     t_out: &[f64],
     tol: Tolerances,
     matrix: M,
-    mut sink: impl FnMut(usize, &[f64]),
+    out: &mut impl Output,
 ) -> Result<Stats, SolveError> {
     p.validate()?;
     validate_run(n_cells, t_out, &tol)?;
@@ -517,7 +558,8 @@ pub fn integrate_with<M: NewtonMatrix>(
     w.y = initial_condition(p, &op.grid);
     let mut next = 0;
     while next < t_out.len() && t_out[next] == 0.0 {
-        sink(next, &w.y);
+        out.profile(next).copy_from_slice(&w.y);
+        out.done(next);
         next += 1;
     }
     let t_end = *t_out.last().unwrap();
@@ -572,13 +614,13 @@ pub fn integrate_with<M: NewtonMatrix>(
                 hermite_coefficients(&mut w.herm, &w.y, &w.k[0], &w.y_new, &w.k[STAGES - 1], h);
                 while next < t_out.len() && t_out[next] <= t_new {
                     let theta = ((t_out[next] - t) / h).clamp(0.0, 1.0);
-                    hermite_eval(&mut w.out, &w.y, &w.herm, theta);
-                    let clip = enforce_bounds(&mut w.out);
-                    if clip > 0.0 {
+                    let buf = out.profile(next);
+                    if !hermite_eval(buf, &w.y, &w.herm, theta) {
+                        let clip = enforce_bounds(buf);
                         stats.clipped += 1;
                         stats.max_clip = stats.max_clip.max(clip);
                     }
-                    sink(next, &w.out);
+                    out.done(next);
                     next += 1;
                 }
                 w.y_prev.copy_from_slice(&w.y);
@@ -603,11 +645,23 @@ pub fn simulate(
     t_out: &[f64],
     tol: Tolerances,
 ) -> Result<(Vec<f64>, Stats), SolveError> {
-    let mut c = vec![0.0; t_out.len() * n_cells];
-    let stats = integrate(p, n_cells, t_out, tol, |k, prof| {
-        c[k * n_cells..(k + 1) * n_cells].copy_from_slice(prof);
-    })?;
-    Ok((c, stats))
+    simulate_with(p, n_cells, t_out, tol, Tridiagonal::new(n_cells))
+}
+
+/// `simulate` with a chosen Newton matrix.
+pub fn simulate_with<M: NewtonMatrix>(
+    p: &Params,
+    n_cells: usize,
+    t_out: &[f64],
+    tol: Tolerances,
+    matrix: M,
+) -> Result<(Vec<f64>, Stats), SolveError> {
+    let mut out = FullOutput {
+        n: n_cells,
+        c: vec![0.0; t_out.len() * n_cells],
+    };
+    let stats = integrate_with(p, n_cells, t_out, tol, matrix, &mut out)?;
+    Ok((out.c, stats))
 }
 
 #[cfg(test)]
@@ -693,13 +747,17 @@ mod tests {
     #[test]
     fn newton_failure_retries_then_reports_time_and_reason() {
         let p = Params::default();
+        let mut out = FullOutput {
+            n: 30,
+            c: vec![0.0; 60],
+        };
         let err = integrate_with(
             &p,
             30,
             &[0.0, 100.0],
             Tolerances::default(),
             Singular,
-            |_, _| {},
+            &mut out,
         )
         .unwrap_err();
         match &err {

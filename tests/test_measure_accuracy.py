@@ -21,8 +21,6 @@ def _mixing_map(n_t: int = N_T) -> np.ndarray:
 
 LOOKS = {
     "ceramic-glass-left-jpeg": dict(heavy="ceramic", light="glass", lighting="left", jpeg_quality=60, noise=4),
-    "steel-ceramic-diffuse-small": dict(heavy="steel", light="ceramic", lighting="diffuse",
-                                        particle_diameter_px=20, image_size=(400, 480)),
     "steel-pp-two-sided": dict(heavy="steel", light="pp"),
     "glass-pp-front-strong-lens": dict(heavy="glass", light="pp", lighting="front",
                                        dist_coeffs=[-0.22, 0.06, 0, 0, 0], blur=1.2),
@@ -32,15 +30,18 @@ LOOKS = {
 HARD_LOOKS = {
     "glass-pom": dict(heavy="glass", light="pom"),
 }
+SMALL_LOOK = dict(heavy="steel", light="ceramic", lighting="diffuse", particle_diameter_px=20, image_size=(400, 480))
 
 
-def _run(tmp_path, look):
-    r = render_frames(_mixing_map(), seed=7, out_dir=tmp_path, **look)
+def _run(tmp_path, look, seed=7):
+    r = render_frames(_mixing_map(), seed=seed, out_dir=tmp_path, **look)
     a = analyze(tmp_path, smooth=1, save=False, progress=False, workers=2)
     return r, a
 
 
 def _check(r, a):
+    """Recall, precision, c_raw RMSD; returns per-layer count error: |detected - true| summed over
+    the frames, relative to the true count of that layer."""
     d = r.experiment["particle_diameter_px"]
     tp = fp = fn = 0
     for truth, s in zip(r.particles, a.spheres, strict=True):
@@ -60,26 +61,38 @@ def _check(r, a):
     return count_error
 
 
+@pytest.mark.parametrize("seed", [7, 8])  # two packings, so the detector is not tuned to one
 @pytest.mark.parametrize("look", list(LOOKS), ids=list(LOOKS))
-def test_map_matches_ground_truth(tmp_path, look):
-    r, a = _run(tmp_path, LOOKS[look])
+def test_map_matches_ground_truth(tmp_path, look, seed):
+    r, a = _run(tmp_path, LOOKS[look], seed)
     _check(r, a)
     # heavy labelled by the first frame: top layers heavy at t = 0
     assert np.nanmean(a.c_raw[0, 10:]) > 0.9 and np.nanmean(a.c_raw[0, :6]) < 0.1
 
 
-@pytest.mark.xfail(strict=True, reason="measured: worst layer off by 37 % (rows 0.87 D apart, one row "
-                   "0.6 px from a layer boundary; per-material vertical centre bias up to 1-2 px flips it "
-                   "wholesale; issue 3 open)")
+@pytest.mark.parametrize("seed", [7, 8])
+def test_small_spheres_steel_ceramic(tmp_path, seed):
+    r, a = _run(tmp_path, SMALL_LOOK, seed)
+    _check(r, a)
+
+
+@pytest.mark.xfail(strict=True, reason="measured (seed 7, every fast look): worst layer off by 9.1 % on "
+                   "ceramic-glass (layers 11/12: one static ceramic sphere 0.1-0.5 px below the boundary "
+                   "fitted 0.55-0.63 px high in 5 of 6 frames: a per-sphere bias, not scatter); steel-pp 1.8 %, "
+                   "glass-pp 2.0 %, steel-ceramic-small 1.9 %; issue 3 open")
 def test_layer_counts_within_3_percent(tmp_path):
-    r, a = _run(tmp_path, LOOKS["ceramic-glass-left-jpeg"])
-    count_error = _check(r, a)
-    assert count_error.max() <= 0.03, f"per-layer count error {count_error.max():.3f}"
+    looks = {**LOOKS, "steel-ceramic-diffuse-small": SMALL_LOOK}
+    worst = {}
+    for name, look in looks.items():
+        r, a = _run(tmp_path / name, look)
+        worst[name] = float(_check(r, a).max())
+    assert max(worst.values()) <= 0.03, f"per-layer count error {worst}"
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason="measured (seed 7): recall 0.991, precision 1.000, but c_raw RMSD "
-                   "0.035 > 0.03: dark POM centres sit 1.9 px high (lighting bias; issue 3 open)")
+@pytest.mark.xfail(strict=True, reason="measured (seed 7): recall 0.993, precision 0.994 (5 false spheres "
+                   "at the lid), c_raw RMSD 0.042 > 0.03: glass centres next to dark POM 0.2-0.25 px high, scatter "
+                   "0.55-0.7 px (POM's rim darker than the gaps; issue 3 open)")
 @pytest.mark.parametrize("look", list(HARD_LOOKS), ids=list(HARD_LOOKS))
 def test_hard_looks(tmp_path, look):
     r, a = _run(tmp_path, HARD_LOOKS[look])

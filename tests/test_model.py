@@ -69,7 +69,7 @@ def test_grid_convergence_is_second_order():
 )
 def test_agrees_with_an_independent_scipy_method_of_lines(rho_h, rho_l, c0):
     t = np.arange(0, 2401, 20.0)
-    ref = Reference(rho_h, rho_l, c0, n=600)
+    ref = Reference(rho_h, rho_l, c0, n=300)
     expected = ref.layers(ref.solve(t, rtol=1e-7, atol=1e-9))
     got = granseg.simulate(rho_h=rho_h, rho_l=rho_l, c0=c0, t=t).layers()
     assert np.max(np.abs(got - expected)) < 1e-3

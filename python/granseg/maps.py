@@ -111,8 +111,28 @@ def _centred_mean(a: np.ndarray, half: int) -> np.ndarray:
 # --------------------------------------------------------------------------- objects
 
 
+class Covariates:
+    """The experiment covariates derived from densities and masses; mixed into
+    every class that carries rho_h, rho_l [kg/m^3], M_w and M_g [kg]."""
+
+    rho_h: float
+    rho_l: float
+    M_w: float
+    M_g: float
+
+    @property
+    def delta_R(self) -> float:
+        """Density ratio rho_h / rho_l [-]."""
+        return self.rho_h / self.rho_l
+
+    @property
+    def M_tilde(self) -> float:
+        """Normalised load M~ = M_w / M_g [-]."""
+        return self.M_w / self.M_g
+
+
 @dataclass(frozen=True, eq=False)
-class Map:
+class Map(Covariates):
     """One experiment's measured concentration map (SI units).
 
     Arrays: ``c`` (n_t, n_layers) heavy share [-] (NaN = no reading), ``t``
@@ -147,16 +167,6 @@ class Map:
         source = str(self.path) if self.path is not None else f"map {self.name!r}"
         for key, value in _validate(source, self.to_arrays()).items():
             object.__setattr__(self, key, value)
-
-    @property
-    def delta_R(self) -> float:
-        """Density ratio rho_h / rho_l [-]."""
-        return self.rho_h / self.rho_l
-
-    @property
-    def M_tilde(self) -> float:
-        """Normalised load M~ = M_w / M_g [-]."""
-        return self.M_w / self.M_g
 
     @property
     def n_layers(self) -> int:

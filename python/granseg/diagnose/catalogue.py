@@ -32,6 +32,8 @@ from typing import Any
 
 import numpy as np
 
+from granseg.maps import Covariates
+
 __all__ = [
     "CATALOGUE",
     "M_TILDE_REF",
@@ -58,7 +60,7 @@ B_LITERATURE = 0.041
 
 
 @dataclass(frozen=True)
-class ExpInfo:
+class ExpInfo(Covariates):
     """The covariates of one experiment the extensions may use (SI units)."""
 
     name: str
@@ -69,16 +71,6 @@ class ExpInfo:
     c0: float
     M_g: float
     M_w: float
-
-    @property
-    def M_tilde(self) -> float:
-        """Normalised load M_w / M_g [-]."""
-        return self.M_w / self.M_g
-
-    @property
-    def delta_R(self) -> float:
-        """Density ratio rho_h / rho_l [-]."""
-        return self.rho_h / self.rho_l
 
     @property
     def pair(self) -> str:

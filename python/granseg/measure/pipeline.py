@@ -186,8 +186,7 @@ def _detect_all(source, exp, workers, progress, keep):
     n_workers = max(1, workers or os.cpu_count() or 1)
     first = _first_image(source)
     worker = _FrameWorker(exp, (first.shape[1], first.shape[0]))
-    if os.environ.get('GS_LEARN_ONCE', '1') == '1':
-        worker.learn(first)
+    worker.learn(first)
     results: dict[int, Any] = {}
     crops: dict[int, np.ndarray] = {}
     n_workers = min(n_workers, len(source))

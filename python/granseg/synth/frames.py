@@ -1,9 +1,9 @@
 """Synthetic side-wall frames of the shear cell, with exact ground truth.
 
 :func:`render_frames` draws what the camera sees through the transparent
-outer wall: spheres packed in rows against the wall, each row sliding
-sideways with the wall-adjacent velocity profile (fast at the bottom plate,
-still under the lid), shaded by material (metallic steel, white ceramic,
+outer wall: spheres in a random dense (jammed) packing against the wall,
+sheared sideways with the wall-adjacent velocity profile (fast at the bottom
+plate, still under the lid), shaded by material (metallic steel, white ceramic,
 transparent glass, dark POM, coloured polypropylene), seen through a
 barrel-distorting lens given as an OpenCV camera model, with blur, sensor
 noise and JPEG artefacts. Which grains are heavy follows a given
