@@ -42,13 +42,19 @@ class Templates:
 
     patches: per appearance group, the mean grey patch (float32, side 2 half + 1);
     offsets: (k, 2) position of the sphere centre relative to the patch middle [px];
-    radii: (k,) sphere radius [px]; d: particle diameter [px].
+    radii: (k,) sphere radius [px]; d: particle diameter [px];
+    polarity: (k,) +1 where the outline is a brightness drop going outward, -1
+    where it is a rise (a dark sphere whose shaded rim is darker than the gaps).
     """
 
     patches: tuple[np.ndarray, ...]
     offsets: np.ndarray
     radii: np.ndarray
     d: float
+    polarity: np.ndarray | None = None
+
+    def polarities(self) -> np.ndarray:
+        return np.ones(len(self.patches)) if self.polarity is None else self.polarity
 
     @property
     def half(self) -> int:
@@ -109,7 +115,8 @@ def detect_particles(image: np.ndarray, particle_diameter_px: float, templates: 
             return np.zeros((0, 5 if groups else 4))
     smooth = _smooth(image, d)
     found = _correlation_peaks(smooth, templates, d)
-    found[:, :2] = outline_centres(smooth, found[:, :2], found[:, 2], d)
+    polarity = templates.polarities()[found[:, 4].astype(int)]
+    found[:, :2] = outline_centres(smooth, found[:, :2], found[:, 2], d, polarity=polarity)
     return found if groups else found[:, :4]
 
 
@@ -251,17 +258,21 @@ def _select(circles: np.ndarray, d: float) -> np.ndarray:
 
 
 def outline_centres(smooth: np.ndarray, centres: np.ndarray, radii: np.ndarray, d: float,
-                    iterations: int = 3, n_rays: int = 48) -> np.ndarray:
-    """Centres (m, 2) of circles of the known radii fitted to the spheres' outlines.
+                    iterations: int = 3, n_rays: int = 48, polarity: np.ndarray | None = None) -> np.ndarray:
+    """Centres (m, 2) of circles about the known radii fitted to the spheres' outlines.
 
     Template peaks and brightness are shifted by shading and highlights, the
     silhouette is not. Along ``n_rays`` rays from each approximate centre the
     outline is the sharpest outward brightness drop within 0.86-1.16 radii:
     the drop per 0.5 px minus its mean over 0.15 d around, so that the smooth
     fall of shading towards a sphere's dark side does not count, only the
-    step at its edge. A robust least-squares fit of a circle of the sphere's
-    known radius to those edge points moves the centre (clipped to 3 px per
-    iteration); rays whose edge disagrees are left out.
+    step at its edge (``polarity`` -1: the sharpest rise, for dark spheres
+    whose rim is darker than the gaps). A robust least-squares fit of a
+    circle to those edge points moves the centre (clipped to 3 px per
+    iteration); rays whose edge disagrees are left out. The radius is fitted
+    too (sizes spread by a few per cent; with the radius fixed, a sphere 3 %
+    larger than the template is pulled 0.5 px towards the side where
+    neighbours hide its outline).
     """
     c = np.asarray(centres, dtype=float).copy()
     if len(c) == 0:
@@ -274,14 +285,15 @@ def outline_centres(smooth: np.ndarray, centres: np.ndarray, radii: np.ndarray, 
     mid = steps[1:-1]
     window = max(3, int(0.3 * d) | 1)  # 0.15 d in 0.5 px samples
     kernel = np.ones(window, np.float32) / window
-    a = ray[None].repeat(len(c), 0)
+    a = np.column_stack([ray, np.ones(n_rays)])[None].repeat(len(c), 0)  # dx, dy, d radius
+    sign = np.ones(len(c)) if polarity is None else np.asarray(polarity, dtype=float)
     for _ in range(iterations):
         px = c[:, 0, None, None] + steps[None, None, :] * ray[None, :, 0, None]
         py = c[:, 1, None, None] + steps[None, None, :] * ray[None, :, 1, None]
         m, k, s = px.shape
         prof = cv2.remap(smooth, px.reshape(m * k, s).astype(np.float32), py.reshape(m * k, s).astype(np.float32),
                          cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-        drop = (prof[:, :-2] - prof[:, 2:]) / 2.0
+        drop = (prof[:, :-2] - prof[:, 2:]) / 2.0 * np.repeat(sign, k)[:, None]
         sharp = drop - cv2.filter2D(drop, -1, kernel[None, :], borderType=cv2.BORDER_REPLICATE)
         sharp = sharp.reshape(m, k, s - 2)
         allowed = (mid[None, None, :] >= 0.86 * radius[:, None, None]) & (mid[None, None, :] <= 1.16 * radius[:, None, None])
@@ -298,13 +310,13 @@ def outline_centres(smooth: np.ndarray, centres: np.ndarray, radii: np.ndarray, 
         w = ok.astype(float)
         for _ in range(3):
             aw = a * w[..., None]
-            ata = np.einsum("mki,mkj->mij", aw, a) + 1e-6 * np.eye(2)
-            shift = np.linalg.solve(ata, np.einsum("mki,mk->mi", aw, edge)[..., None])[..., 0]
-            resid = np.abs(edge - np.einsum("mki,mi->mk", a, shift))
+            ata = np.einsum("mki,mkj->mij", aw, a) + 1e-6 * np.eye(3)
+            sol = np.linalg.solve(ata, np.einsum("mki,mk->mi", aw, edge)[..., None])[..., 0]
+            resid = np.abs(edge - np.einsum("mki,mi->mk", a, sol))
             scale = np.maximum(0.7, 2.5 * np.median(resid, axis=1, keepdims=True))
             w = (ok & (resid < scale)).astype(float)
         good = w.sum(axis=1) >= 6
-        c[good] += np.clip(shift[good], -3.0, 3.0)
+        c[good] += np.clip(sol[good, :2], -3.0, 3.0)
     return c
 
 
@@ -333,22 +345,27 @@ def _templates(smooth, image, centres, d, half) -> Templates:
     patches = np.stack([cv2.getRectSubPix(smooth, (size, size), (float(x), float(y)))
                         for x, y in centres])
     groups = _appearance_groups(image, centres, d)
-    means, offsets, radii = [], [], []
+    means, offsets, radii, polarity = [], [], [], []
     for g in np.unique(groups):
         mean = np.ascontiguousarray(patches[groups == g].mean(axis=0), dtype=np.float32)
-        x, y, r = ring_centre(mean, d)
+        x, y, r, sign = ring_centre(mean, d, polarity=True)
         means.append(mean)
         offsets.append([x - half, y - half])
         radii.append(r)
-    return Templates(tuple(means), np.array(offsets, dtype=float), np.array(radii, dtype=float), float(d))
+        polarity.append(sign)
+    return Templates(tuple(means), np.array(offsets, dtype=float), np.array(radii, dtype=float), float(d),
+                     np.array(polarity, dtype=float))
 
 
-def ring_centre(patch: np.ndarray, d: float) -> tuple[float, float, float]:
+def ring_centre(patch: np.ndarray, d: float, polarity: bool = False) -> tuple[float, ...]:
     """Centre (x, y) and radius [px] of the sphere in the middle of ``patch``.
 
     The circle of radius within 3 % of d/2 and centre within d/4 of the
-    middle across which the brightness falls most, on average, going outward.
-    Works on a mean appearance, where the outline is clean.
+    middle across which the brightness changes most, on average, going
+    outward: usually a fall; a rise for a dark sphere whose shaded rim is
+    darker than the gaps around it. Works on a mean appearance, where the
+    outline is clean. With ``polarity`` also returns +1 for a fall, -1 for a
+    rise.
     """
     h, w = patch.shape
     mid = np.array([(w - 1) / 2, (h - 1) / 2])
@@ -361,9 +378,10 @@ def ring_centre(patch: np.ndarray, d: float) -> tuple[float, float, float]:
         ox, oy = np.meshgrid(offs + best[1] - mid[0], offs + best[2] - mid[1])
         cx, cy = (mid[0] + ox).ravel(), (mid[1] + oy).ravel()
         score = _ring_scores(patch, cx, cy, radii, ray)
-        i, j = np.unravel_index(np.argmax(score), score.shape)
+        i, j = np.unravel_index(np.argmax(np.abs(score)), score.shape)
         best = (score[i, j], cx[i], cy[i], radii[j])
-    return float(best[1]), float(best[2]), float(best[3])
+    centre = float(best[1]), float(best[2]), float(best[3])
+    return (*centre, 1.0 if best[0] >= 0 else -1.0) if polarity else centre
 
 
 def _ring_scores(patch, cx, cy, radii, ray) -> np.ndarray:
