@@ -26,6 +26,7 @@ __all__ = ["Templates", "detect_particles", "learn_templates", "match_templates"
 HOUGH_DIAMETER_PX = 28.0  # Hough runs at a scale where spheres are about this wide
 N_RAYS = 40
 KEEP_FRACTION = 0.3  # correlation peaks weaker than this share of their group's median are dropped
+SMOOTH_SIGMA_PX = 0.5  # blur of the grey image that detection works on [px]
 TEMPLATE_HALF = 0.75  # template half-size [d]: the sphere, its outline and the gaps around it
 
 
@@ -42,19 +43,13 @@ class Templates:
 
     patches: per appearance group, the mean grey patch (float32, side 2 half + 1);
     offsets: (k, 2) position of the sphere centre relative to the patch middle [px];
-    radii: (k,) sphere radius [px]; d: particle diameter [px];
-    polarity: (k,) +1 where the outline is a brightness drop going outward, -1
-    where it is a rise (a dark sphere whose shaded rim is darker than the gaps).
+    radii: (k,) sphere radius [px]; d: particle diameter [px].
     """
 
     patches: tuple[np.ndarray, ...]
     offsets: np.ndarray
     radii: np.ndarray
     d: float
-    polarity: np.ndarray | None = None
-
-    def polarities(self) -> np.ndarray:
-        return np.ones(len(self.patches)) if self.polarity is None else self.polarity
 
     @property
     def half(self) -> int:
@@ -68,7 +63,14 @@ class Templates:
 
 
 def _smooth(image: np.ndarray, d: float) -> np.ndarray:
-    return cv2.GaussianBlur(to_gray(image), (0, 0), max(0.8, d / 40))
+    """Grey image with a light blur against noise.
+
+    No more than 0.5 px: blur pulls the outline edge found on a sphere's
+    shadowed side inwards (its shading falls towards the edge), and so
+    shifts centres towards the lamp (measured: ceramic under a side lamp
+    0.23 px up at 0.95 px blur, 0.17 px at 0.5 px, 0.42 px at 1.5 px).
+    """
+    return cv2.GaussianBlur(to_gray(image), (0, 0), SMOOTH_SIGMA_PX)
 
 
 def learn_templates(image: np.ndarray, particle_diameter_px: float) -> Templates | None:
@@ -115,8 +117,7 @@ def detect_particles(image: np.ndarray, particle_diameter_px: float, templates: 
             return np.zeros((0, 5 if groups else 4))
     smooth = _smooth(image, d)
     found = _correlation_peaks(smooth, templates, d)
-    polarity = templates.polarities()[found[:, 4].astype(int)]
-    found[:, :2] = outline_centres(smooth, found[:, :2], found[:, 2], d, polarity=polarity)
+    found[:, :2] = outline_centres(smooth, found[:, :2], found[:, 2], d)
     return found if groups else found[:, :4]
 
 
@@ -258,7 +259,7 @@ def _select(circles: np.ndarray, d: float) -> np.ndarray:
 
 
 def outline_centres(smooth: np.ndarray, centres: np.ndarray, radii: np.ndarray, d: float,
-                    iterations: int = 3, n_rays: int = 48, polarity: np.ndarray | None = None) -> np.ndarray:
+                    iterations: int = 3, n_rays: int = 48) -> np.ndarray:
     """Centres (m, 2) of circles about the known radii fitted to the spheres' outlines.
 
     Template peaks and brightness are shifted by shading and highlights, the
@@ -266,10 +267,10 @@ def outline_centres(smooth: np.ndarray, centres: np.ndarray, radii: np.ndarray, 
     outline is the sharpest outward brightness drop within 0.86-1.16 radii:
     the drop per 0.5 px minus its mean over 0.15 d around, so that the smooth
     fall of shading towards a sphere's dark side does not count, only the
-    step at its edge (``polarity`` -1: the sharpest rise, for dark spheres
-    whose rim is darker than the gaps). A robust least-squares fit of a
+    step at its edge. A robust least-squares fit of a
     circle to those edge points moves the centre (clipped to 3 px per
-    iteration); rays whose edge disagrees are left out. The radius is fitted
+    iteration); rays count by the strength of their edge, and rays whose edge
+    disagrees are left out. The radius is fitted
     too (sizes spread by a few per cent; with the radius fixed, a sphere 3 %
     larger than the template is pulled 0.5 px towards the side where
     neighbours hide its outline).
@@ -286,14 +287,13 @@ def outline_centres(smooth: np.ndarray, centres: np.ndarray, radii: np.ndarray, 
     window = max(3, int(0.3 * d) | 1)  # 0.15 d in 0.5 px samples
     kernel = np.ones(window, np.float32) / window
     a = np.column_stack([ray, np.ones(n_rays)])[None].repeat(len(c), 0)  # dx, dy, d radius
-    sign = np.ones(len(c)) if polarity is None else np.asarray(polarity, dtype=float)
     for _ in range(iterations):
         px = c[:, 0, None, None] + steps[None, None, :] * ray[None, :, 0, None]
         py = c[:, 1, None, None] + steps[None, None, :] * ray[None, :, 1, None]
         m, k, s = px.shape
         prof = cv2.remap(smooth, px.reshape(m * k, s).astype(np.float32), py.reshape(m * k, s).astype(np.float32),
                          cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-        drop = (prof[:, :-2] - prof[:, 2:]) / 2.0 * np.repeat(sign, k)[:, None]
+        drop = (prof[:, :-2] - prof[:, 2:]) / 2.0
         sharp = drop - cv2.filter2D(drop, -1, kernel[None, :], borderType=cv2.BORDER_REPLICATE)
         sharp = sharp.reshape(m, k, s - 2)
         allowed = (mid[None, None, :] >= 0.86 * radius[:, None, None]) & (mid[None, None, :] <= 1.16 * radius[:, None, None])
@@ -307,15 +307,19 @@ def outline_centres(smooth: np.ndarray, centres: np.ndarray, radii: np.ndarray, 
         denom = np.where(ok, lo - 2 * peak + hi, -1.0)
         frac = np.where(ok & (np.abs(denom) > 1e-6), 0.5 * (lo - hi) / np.where(denom == 0, -1.0, denom), 0.0)
         edge = mid[best] + 0.5 * np.clip(np.nan_to_num(frac), -0.5, 0.5) - radius[:, None]
-        w = ok.astype(float)
+        # rays weighted by edge strength: where a sphere touches a neighbour
+        # its outline is faint and least trustworthy
+        wt = np.where(ok, peak, 0.0)
+        wt = wt / np.maximum(wt.mean(axis=1, keepdims=True), 1e-9)
+        w = ok.astype(float) * wt
         for _ in range(3):
             aw = a * w[..., None]
             ata = np.einsum("mki,mkj->mij", aw, a) + 1e-6 * np.eye(3)
             sol = np.linalg.solve(ata, np.einsum("mki,mk->mi", aw, edge)[..., None])[..., 0]
             resid = np.abs(edge - np.einsum("mki,mi->mk", a, sol))
             scale = np.maximum(0.7, 2.5 * np.median(resid, axis=1, keepdims=True))
-            w = (ok & (resid < scale)).astype(float)
-        good = w.sum(axis=1) >= 6
+            w = (ok & (resid < scale)).astype(float) * wt
+        good = (w > 0).sum(axis=1) >= 6
         c[good] += np.clip(sol[good, :2], -3.0, 3.0)
     return c
 
@@ -345,27 +349,22 @@ def _templates(smooth, image, centres, d, half) -> Templates:
     patches = np.stack([cv2.getRectSubPix(smooth, (size, size), (float(x), float(y)))
                         for x, y in centres])
     groups = _appearance_groups(image, centres, d)
-    means, offsets, radii, polarity = [], [], [], []
+    means, offsets, radii = [], [], []
     for g in np.unique(groups):
         mean = np.ascontiguousarray(patches[groups == g].mean(axis=0), dtype=np.float32)
-        x, y, r, sign = ring_centre(mean, d, polarity=True)
+        x, y, r = ring_centre(mean, d)
         means.append(mean)
         offsets.append([x - half, y - half])
         radii.append(r)
-        polarity.append(sign)
-    return Templates(tuple(means), np.array(offsets, dtype=float), np.array(radii, dtype=float), float(d),
-                     np.array(polarity, dtype=float))
+    return Templates(tuple(means), np.array(offsets, dtype=float), np.array(radii, dtype=float), float(d))
 
 
-def ring_centre(patch: np.ndarray, d: float, polarity: bool = False) -> tuple[float, ...]:
+def ring_centre(patch: np.ndarray, d: float) -> tuple[float, float, float]:
     """Centre (x, y) and radius [px] of the sphere in the middle of ``patch``.
 
     The circle of radius within 3 % of d/2 and centre within d/4 of the
-    middle across which the brightness changes most, on average, going
-    outward: usually a fall; a rise for a dark sphere whose shaded rim is
-    darker than the gaps around it. Works on a mean appearance, where the
-    outline is clean. With ``polarity`` also returns +1 for a fall, -1 for a
-    rise.
+    middle across which the brightness falls most, on average, going outward.
+    Works on a mean appearance, where the outline is clean.
     """
     h, w = patch.shape
     mid = np.array([(w - 1) / 2, (h - 1) / 2])
@@ -378,10 +377,9 @@ def ring_centre(patch: np.ndarray, d: float, polarity: bool = False) -> tuple[fl
         ox, oy = np.meshgrid(offs + best[1] - mid[0], offs + best[2] - mid[1])
         cx, cy = (mid[0] + ox).ravel(), (mid[1] + oy).ravel()
         score = _ring_scores(patch, cx, cy, radii, ray)
-        i, j = np.unravel_index(np.argmax(np.abs(score)), score.shape)
+        i, j = np.unravel_index(np.argmax(score), score.shape)
         best = (score[i, j], cx[i], cy[i], radii[j])
-    centre = float(best[1]), float(best[2]), float(best[3])
-    return (*centre, 1.0 if best[0] >= 0 else -1.0) if polarity else centre
+    return float(best[1]), float(best[2]), float(best[3])
 
 
 def _ring_scores(patch, cx, cy, radii, ray) -> np.ndarray:
