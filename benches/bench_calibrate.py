@@ -23,7 +23,7 @@ import numpy as np
 
 import granseg
 from granseg._io import save_json
-from granseg.calibrate import calibrate
+from granseg.calibration import calibrate
 from granseg.maps import Map, moving_average
 
 RHO = {"S": 7800.0, "C": 3500.0, "G": 2450.0, "POM": 1750.0, "PP": 946.0}

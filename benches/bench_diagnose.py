@@ -16,7 +16,7 @@ import os
 import time
 from pathlib import Path
 
-from granseg.diagnose import diagnose
+from granseg.diagnosis import diagnose
 from granseg.synth.virtual import campaign
 
 BUDGET_S = 120.0

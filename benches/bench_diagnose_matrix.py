@@ -19,8 +19,8 @@ import json
 import time
 from pathlib import Path
 
-from granseg.diagnose import diagnose
-from granseg.diagnose.catalogue import names
+from granseg.diagnosis import diagnose
+from granseg.diagnosis.catalogue import names
 from granseg.synth.virtual import campaign, random_conditions, random_effect
 
 TRUTHS = ["none", *names(), "misclassification"]

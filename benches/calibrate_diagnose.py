@@ -3,7 +3,7 @@
 Baseline-only virtual campaigns (no hidden effect) are diagnosed with the
 decision thresholds switched off; for each we record the best candidate's
 held-out gain in noise-floor units and the baseline's mean RMSD / noise
-floor. The thresholds in granseg/diagnose/selection.py are set above the
+floor. The thresholds in granseg/diagnosis/selection.py are set above the
 largest values seen here, with a margin (see its docstring).
 
     python benches/calibrate_diagnose.py --seeds 8 [--out benches/results/diagnose_null_calibration.json]
@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from granseg.diagnose import diagnose
+from granseg.diagnosis import diagnose
 from granseg.synth.virtual import campaign, random_conditions
 
 

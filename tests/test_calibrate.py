@@ -12,7 +12,7 @@ import pytest
 pytest.importorskip("granseg._core", reason="the Rust extension is not built (maturin develop)")
 
 import granseg  # noqa: E402
-from granseg.calibrate import calibrate, check_grid  # noqa: E402
+from granseg.calibration import calibrate, check_grid  # noqa: E402
 from granseg.cli import main  # noqa: E402
 from granseg.maps import Map, load_campaign, moving_average, save_map  # noqa: E402
 

@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 
 from granseg.cli import main
-from granseg.diagnose import catalogue, selection
-from granseg.diagnose.fitting import Data, fit, loo_params, loo_predict
-from granseg.diagnose.noise import noise_floor
+from granseg.diagnosis import catalogue, selection
+from granseg.diagnosis.fitting import Data, fit, loo_params, loo_predict
+from granseg.diagnosis.noise import noise_floor
 from granseg.maps import Map, moving_average
 from granseg.synth.virtual import Condition, campaign, random_conditions
 
@@ -106,6 +106,6 @@ def test_cli_writes_the_json_contract_and_refuses_to_overwrite(tmp_path, capsys)
 
 def test_bad_campaign_names_the_problem(tmp_path):
     with pytest.raises(FileNotFoundError, match="nope"):
-        from granseg.diagnose import diagnose
+        from granseg.diagnosis import diagnose
 
         diagnose(tmp_path / "nope", progress=False)

@@ -10,8 +10,8 @@ from __future__ import annotations
 
 import pytest
 
-from granseg.diagnose import diagnose
-from granseg.diagnose.catalogue import names
+from granseg.diagnosis import diagnose
+from granseg.diagnosis.catalogue import names
 from granseg.synth.virtual import campaign, random_conditions, random_effect
 
 

@@ -97,7 +97,7 @@ def register(subparsers: Any) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from granseg._io import check_writable, save_json
-    from granseg.calibrate import calibrate
+    from granseg.calibration import calibrate
     from granseg.maps import load_campaign
 
     if args.json:

@@ -93,7 +93,7 @@ def run(args: argparse.Namespace) -> int:
 
     logging.getLogger("fontTools").setLevel(logging.WARNING)  # PDF font subsetting chatter
     import granseg
-    from granseg.diagnose import diagnose
+    from granseg.diagnosis import diagnose
     from granseg.synth.virtual import campaign
 
     t0 = time.perf_counter()

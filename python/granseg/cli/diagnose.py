@@ -10,7 +10,7 @@ __all__ = ["register", "run"]
 
 def register(subparsers: Any) -> None:
     """Add the ``diagnose`` subcommand."""
-    from granseg.diagnose.catalogue import names
+    from granseg.diagnosis.catalogue import names
 
     p = subparsers.add_parser(
         "diagnose",
@@ -35,7 +35,7 @@ def run(args: argparse.Namespace) -> int:
     import logging
 
     logging.getLogger("fontTools").setLevel(logging.WARNING)  # PDF font subsetting chatter
-    from granseg.diagnose import diagnose
+    from granseg.diagnosis import diagnose
 
     d = diagnose(args.campaign, json=args.json, report=args.report, force=args.force,
                  causes=args.causes, n_cells=args.n_cells, progress=not args.quiet)

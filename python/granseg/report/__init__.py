@@ -63,12 +63,12 @@ def build_report(
 ) -> Path:
     """Write the report of ``campaign`` (directory or Campaign) into folder ``out``.
 
-    ``calibration`` is a :class:`granseg.calibrate.Calibration` to reuse;
-    otherwise :func:`granseg.calibrate.calibrate` runs with
+    ``calibration`` is a :class:`granseg.calibration.Calibration` to reuse;
+    otherwise :func:`granseg.calibration.calibrate` runs with
     ``calibrate_kwargs``. ``fits_c0`` selects the experiments whose A and
     tau are fitted with the laws (None = all). Returns the HTML path.
     """
-    from granseg.calibrate import calibrate
+    from granseg.calibration import calibrate
     from granseg.fit import fit_campaign
     from granseg.maps import load_campaign
 

@@ -142,7 +142,7 @@ def frame_rate(rho_h: float, rho_l: float) -> float:
 def _effect_setup(effect: str, strength: float, cond: Condition, base: Mapping[str, float],
                   effect_params: Mapping[str, float]) -> tuple[dict[str, float], float, Any]:
     """Solver parameters, time shift [s] and wall-view function of one experiment."""
-    from granseg.diagnose import catalogue as cat
+    from granseg.diagnosis import catalogue as cat
     from granseg.model import MATERIALS
 
     exp = cat.ExpInfo(cond.label(), cond.heavy, cond.light, MATERIALS[cond.heavy],

@@ -6,15 +6,15 @@
 1. calibrates the baseline's global ``k`` [-] and ``delta/H`` [-] (the 3 x 3
    factorial of the calibration, then least squares on every map at once);
 2. estimates the measurement-noise floor [-] from the maps' own counts and
-   frame-to-frame scatter (:mod:`granseg.diagnose.noise`);
-3. gathers the misfit evidence (:mod:`granseg.diagnose.evidence`);
-4. fits every cause of the catalogue (:mod:`granseg.diagnose.catalogue`) and
+   frame-to-frame scatter (:mod:`granseg.diagnosis.noise`);
+3. gathers the misfit evidence (:mod:`granseg.diagnosis.evidence`);
+4. fits every cause of the catalogue (:mod:`granseg.diagnosis.catalogue`) and
    compares them by leave-one-experiment-out prediction, with a significance
-   rule calibrated on null campaigns (:mod:`granseg.diagnose.selection`);
+   rule calibrated on null campaigns (:mod:`granseg.diagnosis.selection`);
 5. names the cause (a catalogue name, ``none`` or ``unexplained``) with the
    fitted extension, its uncertainty and the gain in and out of sample;
 6. optionally writes the JSON contract and an HTML report with the evidence
-   figures (:mod:`granseg.diagnose.report`).
+   figures (:mod:`granseg.diagnosis.report`).
 
 Example::
 
@@ -36,11 +36,11 @@ from typing import Any
 
 import numpy as np
 
-from granseg.diagnose import catalogue, selection
-from granseg.diagnose.catalogue import CATALOGUE, Baseline
-from granseg.diagnose.evidence import Evidence, gather
-from granseg.diagnose.fitting import Data, Fit, fit, loo_predict, model_maps, rmsd
-from granseg.diagnose.noise import NoiseEstimate, campaign_floor
+from granseg.diagnosis import catalogue, selection
+from granseg.diagnosis.catalogue import CATALOGUE, Baseline
+from granseg.diagnosis.evidence import Evidence, gather
+from granseg.diagnosis.fitting import Data, Fit, fit, loo_predict, model_maps, rmsd
+from granseg.diagnosis.noise import NoiseEstimate, campaign_floor
 
 __all__ = ["CATALOGUE", "Diagnosis", "diagnose"]
 
@@ -54,7 +54,7 @@ class Diagnosis:
 
     ``result`` is the JSON contract (see :meth:`to_json`); the other fields
     keep the arrays the report draws: ``maps``, the baseline and candidate
-    :class:`~granseg.diagnose.fitting.Fit` objects, held-out RMSDs and maps,
+    :class:`~granseg.diagnosis.fitting.Fit` objects, held-out RMSDs and maps,
     the noise estimates and the evidence.
     """
 
@@ -143,7 +143,7 @@ def diagnose(
     max_nfev : cap on residual evaluations (one sweep each) per fit.
     gain_threshold, excess_threshold : the decision thresholds in units of the
         noise floor (defaults calibrated on null campaigns, see
-        :mod:`granseg.diagnose.selection`).
+        :mod:`granseg.diagnosis.selection`).
     progress : log each step to stderr.
 
     Returns a :class:`Diagnosis`; ``Diagnosis.result`` is the JSON contract.
@@ -187,7 +187,7 @@ def _write_outputs(diag: Diagnosis, json: Any, report: Any, force: bool, log: Ca
     from granseg._io import save_json
 
     if report is not None:
-        from granseg.diagnose.report import write_report
+        from granseg.diagnosis.report import write_report
 
         index = write_report(diag, Path(report), force=force)
         diag.result["report"] = str(index)

@@ -1,7 +1,7 @@
 """What the baseline's misfit looks like: residual structure, per-experiment optima, covariates.
 
 These are the clues a researcher reads before naming a cause (the selection
-itself is done by cross-validation in :mod:`granseg.diagnose.selection`):
+itself is done by cross-validation in :mod:`granseg.diagnosis.selection`):
 
 * residual maps (model - measured) and their mean over experiments in
   normalised time (t / t_end) and in depth (layer);
@@ -23,8 +23,8 @@ from typing import Any
 import numpy as np
 from scipy.stats import spearmanr
 
-from granseg.diagnose.catalogue import Baseline
-from granseg.diagnose.fitting import Data, Fit, model_maps, rmsd
+from granseg.diagnosis.catalogue import Baseline
+from granseg.diagnosis.fitting import Data, Fit, model_maps, rmsd
 
 __all__ = ["DELTA_SCAN", "K_SCAN", "Evidence", "gather"]
 

@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 from scipy.optimize import least_squares
 
-from granseg.diagnose.catalogue import BASE_PARAMS, ExpInfo, Extension, Param
+from granseg.diagnosis.catalogue import BASE_PARAMS, ExpInfo, Extension, Param
 from granseg.maps import Map, moving_average
 
 __all__ = ["Data", "Fit", "fit", "loo_predict", "model_maps"]

@@ -21,7 +21,7 @@ from matplotlib.colors import TwoSlopeNorm
 from matplotlib.figure import Figure
 
 from granseg._io import OutputExistsError, atomic_write, save_json
-from granseg.diagnose.catalogue import M_TILDE_REF
+from granseg.diagnosis.catalogue import M_TILDE_REF
 from granseg.plot import H_LABEL, T_LABEL, save_figure, style
 
 __all__ = ["write_report", "FIGURES"]
