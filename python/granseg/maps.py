@@ -111,14 +111,21 @@ def _centred_mean(a: np.ndarray, half: int) -> np.ndarray:
 # --------------------------------------------------------------------------- objects
 
 
-class Covariates:
-    """The experiment covariates derived from densities and masses; mixed into
-    every class that carries rho_h, rho_l [kg/m^3], M_w and M_g [kg]."""
+@dataclass(frozen=True)
+class Conditions:
+    """What defines one experiment apart from its measurements (SI units):
+    its id, materials, densities [kg/m^3], heavy fraction c0 [-], grain mass
+    M_g and lid load M_w [kg]. Maps, frame experiments and the diagnosis
+    catalogue all carry these, and the derived covariates below."""
 
+    name: str
+    heavy: str
+    light: str
     rho_h: float
     rho_l: float
-    M_w: float
+    c0: float
     M_g: float
+    M_w: float
 
     @property
     def delta_R(self) -> float:
@@ -132,7 +139,7 @@ class Covariates:
 
 
 @dataclass(frozen=True, eq=False)
-class Map(Covariates):
+class Map(Conditions):
     """One experiment's measured concentration map (SI units).
 
     Arrays: ``c`` (n_t, n_layers) heavy share [-] (NaN = no reading), ``t``
@@ -146,14 +153,6 @@ class Map(Covariates):
     c: np.ndarray
     t: np.ndarray
     z: np.ndarray
-    name: str
-    heavy: str
-    light: str
-    rho_h: float
-    rho_l: float
-    c0: float
-    M_g: float
-    M_w: float
     n: np.ndarray | None = None
     n_heavy: np.ndarray | None = None
     c_raw: np.ndarray | None = None

@@ -32,7 +32,7 @@ from typing import Any
 
 import numpy as np
 
-from granseg.maps import Covariates
+from granseg.maps import Conditions
 
 __all__ = [
     "CATALOGUE",
@@ -60,17 +60,8 @@ B_LITERATURE = 0.041
 
 
 @dataclass(frozen=True)
-class ExpInfo(Covariates):
+class ExpInfo(Conditions):
     """The covariates of one experiment the extensions may use (SI units)."""
-
-    name: str
-    heavy: str
-    light: str
-    rho_h: float
-    rho_l: float
-    c0: float
-    M_g: float
-    M_w: float
 
     @property
     def pair(self) -> str:

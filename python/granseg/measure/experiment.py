@@ -11,6 +11,8 @@ from typing import Any
 
 import numpy as np
 
+from granseg.maps import Conditions
+
 __all__ = ["Experiment", "load_experiment"]
 
 TEXT_FIELDS = ("name", "heavy", "light")
@@ -18,21 +20,13 @@ COLOUR_RANGES = ("heavy_hsv", "light_hsv", "heavy_lab", "light_lab")
 
 
 @dataclass(frozen=True)
-class Experiment:
+class Experiment(Conditions):
     """One experiment's description: densities [kg/m^3], masses [kg], fps [1/s],
     OpenCV camera model, investigation window and sphere diameter [undistorted px],
     and optional colour ranges (``heavy_hsv`` etc.: [[lo x3], [hi x3]], OpenCV
     8-bit HSV or LAB) that override the learned colour classes."""
 
     path: Path
-    name: str
-    heavy: str
-    light: str
-    rho_h: float
-    rho_l: float
-    c0: float
-    M_g: float
-    M_w: float
     fps: float | None
     camera_matrix: np.ndarray
     dist_coeffs: np.ndarray
