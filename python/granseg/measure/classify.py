@@ -2,7 +2,7 @@
 
 No thresholds are tuned by hand. Every sphere is described by the median
 colour of its middle in CIE LAB (plus the spread of its lightness, which sets
-shiny metal and glass apart from matt plastics). A two-component Gaussian
+shiny metal and glass apart from matt plastics). A two-component Student-t
 mixture fitted to all spheres of the run finds the two materials; the class
 whose spheres sit higher in the first frame is the heavy one, because an
 experiment starts with the heavy layer on top. Explicit colour ranges in
@@ -64,12 +64,23 @@ def _circular_median_hue(h: np.ndarray) -> np.ndarray:
     return ((mean + np.median(dev, axis=1)) % (2 * np.pi)) * (180 / (2 * np.pi))
 
 
+NU = 4.0  # Student-t degrees of freedom: heavy tails for shadowed, highlighted or off-centre spheres
+
+
 @dataclass(frozen=True)
 class ColourClasses:
-    """Two Gaussian colour classes in the standardised LAB feature space."""
+    """Two Student-t colour classes in the standardised LAB feature space.
+
+    Student-t rather than Gaussian because a material's colour cluster has
+    outliers (a sphere in a neighbour's shadow, a highlight, a centre off by a
+    pixel or two) while its core can be very tight (a neutral grey: a and b
+    within 0.2 levels). A Gaussian class then calls such an outlier, many
+    standard deviations out in lightness only, the other material, even when
+    its hue says otherwise (dark POM read as glass, issue 3).
+    """
 
     mean: np.ndarray  # (2, 4), row 1 = heavy
-    cov: np.ndarray  # (2, 4, 4)
+    cov: np.ndarray  # (2, 4, 4), scale matrices
     weight: np.ndarray  # (2,)
     scale: np.ndarray  # (4,) feature standardisation
 
@@ -105,41 +116,52 @@ def learn_classes(features: np.ndarray, first_frame_features: np.ndarray,
     return classes
 
 
-def _em(x: np.ndarray, seed: int, iterations: int = 60) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Two-component Gaussian mixture by expectation-maximisation, k-means start."""
+def _em(x: np.ndarray, seed: int, iterations: int = 80) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Two-component Student-t mixture (fixed NU) by expectation-maximisation, k-means start.
+
+    Peel & McLachlan (2000): each E-step also weighs every point by
+    (NU + p) / (NU + Mahalanobis^2), so outliers pull less on mean and scale.
+    """
     crit = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_MAX_ITER, 50, 1e-4)
     cv2.setRNGSeed(seed)
     _, labels, _ = cv2.kmeans(x.astype(np.float32), 2, None, crit, 4, cv2.KMEANS_PP_CENTERS)
     resp = np.eye(2)[labels.ravel()]
+    u = np.ones((len(x), 2))
     for _ in range(iterations):
-        mean, cov, weight = _m_step(x, resp)
-        logp = _log_densities(x, mean, cov, weight)
+        mean, cov, weight = _m_step(x, resp, u)
+        logp, maha = _log_densities(x, mean, cov, weight, with_distance=True)
         new = np.exp(logp - logp.max(axis=1, keepdims=True))
         new /= new.sum(axis=1, keepdims=True)
+        u = (NU + x.shape[1]) / (NU + maha)
         if np.abs(new - resp).max() < 1e-6:
             break
         resp = new
     return mean, cov, weight
 
 
-def _m_step(x, resp):
+def _m_step(x, resp, u):
     nk = resp.sum(axis=0) + 1e-9
-    mean = (resp.T @ x) / nk[:, None]
     cov = np.empty((2, x.shape[1], x.shape[1]))
+    mean = np.empty((2, x.shape[1]))
     for k in range(2):
+        w = resp[:, k] * u[:, k]
+        mean[k] = w @ x / (w.sum() + 1e-12)
         dx = x - mean[k]
-        cov[k] = (resp[:, k, None] * dx).T @ dx / nk[k] + 1e-3 * np.eye(x.shape[1])
+        cov[k] = (w[:, None] * dx).T @ dx / nk[k] + 1e-3 * np.eye(x.shape[1])
     return mean, cov, nk / nk.sum()
 
 
-def _log_densities(x, mean, cov, weight) -> np.ndarray:
-    out = np.empty((len(x), 2))
+def _log_densities(x, mean, cov, weight, with_distance: bool = False):
+    """Log of weight x multivariate Student-t density (NU) of each point in each class, (m, 2)."""
+    p = x.shape[1]
+    out, maha = np.empty((len(x), 2)), np.empty((len(x), 2))
     for k in range(2):
         dx = x - mean[k]
         inv = np.linalg.inv(cov[k])
         _, logdet = np.linalg.slogdet(cov[k])
-        out[:, k] = np.log(weight[k]) - 0.5 * (logdet + np.einsum("ij,jk,ik->i", dx, inv, dx))
-    return out
+        maha[:, k] = np.einsum("ij,jk,ik->i", dx, inv, dx)
+        out[:, k] = np.log(weight[k]) - 0.5 * logdet - 0.5 * (NU + p) * np.log1p(maha[:, k] / NU)
+    return (out, maha) if with_distance else out
 
 
 def classify_by_ranges(features: np.ndarray, ranges: dict[str, np.ndarray]) -> np.ndarray:

@@ -3,7 +3,8 @@
 ``render_frames(c, ...)`` draws side-wall frames whose heavy share per layer
 follows the map ``c`` (see :mod:`granseg.synth.frames`);
 ``render_checkerboard(...)`` draws a calibration target through a lens;
-``campaign(...)`` builds a set of virtual experiments (granseg.synth.virtual).
+``campaign(...)`` builds a set of virtual experiments (granseg.synth.virtual);
+``SCENES`` names the renderer settings the detector is tested on.
 """
 
 from __future__ import annotations
@@ -17,10 +18,11 @@ from granseg.synth.frames import (
     render_checkerboard,
     render_frames,
 )
+from granseg.synth.scenes import SCENES, mixing_map
 
 __all__ = [
-    "MATERIAL_LOOKS", "TABLE1", "Condition", "RenderedFrames", "campaign", "default_camera",
-    "random_conditions", "random_effect", "render_checkerboard", "render_frames",
+    "MATERIAL_LOOKS", "SCENES", "TABLE1", "Condition", "RenderedFrames", "campaign", "default_camera",
+    "mixing_map", "random_conditions", "random_effect", "render_checkerboard", "render_frames",
 ]
 
 

@@ -1,0 +1,188 @@
+"""Sphere centres from their outlines: circles fitted to where the brightness falls at the rim.
+
+:func:`refine_circles` confirms rough candidates (rim searched widely, radius
+free); :func:`outline_centres` places spheres found by their templates to a
+few tenths of a pixel; :func:`ring_centre` finds the sphere in a mean patch.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+__all__ = ["outline_centres", "refine_circles", "ring_centre"]
+
+N_RAYS = 40
+
+
+def refine_circles(smooth: np.ndarray, centres: np.ndarray, particle_diameter_px: float,
+                   iterations: int = 3) -> np.ndarray:
+    """Refine approximate centres by fitting circles to the spheres' outlines.
+
+    ``smooth`` is a float32 grey image (lightly blurred), ``centres`` (m, 2)
+    approximate x, y [px]. Returns (m, 5): x, y, radius [px], score (median
+    outward brightness drop at the outline, grey levels per px) and the share
+    of rays that agree with the fitted circle.
+    """
+    c = np.asarray(centres, dtype=float).copy()
+    result = np.zeros((c.shape[0], 5))
+    for _ in range(iterations):
+        result = _fit_outline(smooth, c, particle_diameter_px)
+        moved = np.hypot(*(result[:, :2] - c).T)
+        c = np.where((moved < 0.3 * particle_diameter_px)[:, None], result[:, :2], c)
+    return result
+
+
+def _fit_outline(smooth: np.ndarray, c: np.ndarray, d: float) -> np.ndarray:
+    radius = 0.5 * d
+    theta = np.linspace(0, 2 * np.pi, N_RAYS, endpoint=False)
+    cos, sin = np.cos(theta), np.sin(theta)
+    steps = np.arange(0.6 * radius, 1.25 * radius, 0.5)
+    px = c[:, 0, None, None] + steps[None, None, :] * cos[None, :, None]
+    py = c[:, 1, None, None] + steps[None, None, :] * sin[None, :, None]
+    m, k, s = px.shape
+    prof = cv2.remap(smooth, px.reshape(m * k, s).astype(np.float32),
+                     py.reshape(m * k, s).astype(np.float32), cv2.INTER_LINEAR,
+                     borderMode=cv2.BORDER_REPLICATE).reshape(m, k, s)
+    drop = (prof[:, :, :-2] - prof[:, :, 2:]) / 2.0  # outward brightness drop per 0.5 px
+    best = np.argmax(drop, axis=2)
+    peak = np.take_along_axis(drop, best[..., None], 2)[..., 0]
+    lo = np.take_along_axis(drop, np.clip(best - 1, 0, s - 3)[..., None], 2)[..., 0]
+    hi = np.take_along_axis(drop, np.clip(best + 1, 0, s - 3)[..., None], 2)[..., 0]
+    denom = lo - 2 * peak + hi
+    frac = np.where(np.abs(denom) > 1e-6, 0.5 * (lo - hi) / np.where(denom == 0, 1, denom), 0.0)
+    r_edge = steps[0] + 0.5 * (best + 1 + np.clip(frac, -0.5, 0.5))
+    ex = c[:, 0, None] + r_edge * cos
+    ey = c[:, 1, None] + r_edge * sin
+    return _robust_circles(ex, ey, np.clip(peak, 0, None) * 2.0)
+
+
+def _robust_circles(ex: np.ndarray, ey: np.ndarray, strength: np.ndarray) -> np.ndarray:
+    """Weighted algebraic circle fits (m at once), refitted without outlier rays."""
+    w = (strength > 0).astype(float) * np.sqrt(strength)
+    fit = _kasa(ex, ey, w)
+    for _ in range(2):
+        resid = np.abs(np.hypot(ex - fit[:, 0, None], ey - fit[:, 1, None]) - fit[:, 2, None])
+        scale = np.maximum(1.0, 2.5 * np.median(resid, axis=1, keepdims=True))
+        inlier = (resid < scale) & (strength > 0)
+        fit = _kasa(ex, ey, w * inlier)
+    share = inlier.mean(axis=1)
+    score = np.median(np.where(inlier, strength, 0.0), axis=1)
+    return np.column_stack([fit, score, share])
+
+
+def _kasa(ex: np.ndarray, ey: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """Least-squares circles x^2 + y^2 + a x + b y + c = 0; returns (m, 3): x, y, r."""
+    mx = (w * ex).sum(1) / np.maximum(w.sum(1), 1e-9)
+    my = (w * ey).sum(1) / np.maximum(w.sum(1), 1e-9)
+    u, v = ex - mx[:, None], ey - my[:, None]
+    a = np.stack([u, v, np.ones_like(u)], axis=2) * w[..., None]
+    b = -(u * u + v * v) * w
+    ata = np.einsum("mki,mkj->mij", a, a) + 1e-9 * np.eye(3)
+    atb = np.einsum("mki,mk->mi", a, b)
+    sol = np.linalg.solve(ata, atb[..., None])[..., 0]
+    cx, cy = -sol[:, 0] / 2, -sol[:, 1] / 2
+    r = np.sqrt(np.maximum(cx * cx + cy * cy - sol[:, 2], 0.0))
+    return np.column_stack([cx + mx, cy + my, r])
+
+
+def outline_centres(smooth: np.ndarray, centres: np.ndarray, radii: np.ndarray, d: float,
+                    iterations: int = 3, n_rays: int = 48) -> np.ndarray:
+    """Centres (m, 2) of circles about the known radii fitted to the spheres' outlines.
+
+    Template peaks and brightness are shifted by shading and highlights, the
+    silhouette is not. Along ``n_rays`` rays from each approximate centre the
+    outline is the sharpest outward brightness drop within 0.86-1.16 radii:
+    the drop per 0.5 px minus its mean over 0.15 d around, so that the smooth
+    fall of shading towards a sphere's dark side does not count, only the
+    step at its edge. A robust least-squares fit of a
+    circle to those edge points moves the centre (clipped to 3 px per
+    iteration); rays count by the strength of their edge, and rays whose edge
+    disagrees are left out. The radius is fitted
+    too (sizes spread by a few per cent; with the radius fixed, a sphere 3 %
+    larger than the template is pulled 0.5 px towards the side where
+    neighbours hide its outline).
+    """
+    c = np.asarray(centres, dtype=float).copy()
+    if len(c) == 0:
+        return c
+    radius = np.asarray(radii, dtype=float)
+    theta = np.linspace(0, 2 * np.pi, n_rays, endpoint=False)
+    ray = np.column_stack([np.cos(theta), np.sin(theta)])
+    r_max = float(radius.max())
+    steps = np.arange(0.65 * r_max, 1.4 * r_max, 0.5)
+    mid = steps[1:-1]
+    window = max(3, int(0.3 * d) | 1)  # 0.15 d in 0.5 px samples
+    kernel = np.ones(window, np.float32) / window
+    a = np.column_stack([ray, np.ones(n_rays)])[None].repeat(len(c), 0)  # dx, dy, d radius
+    for _ in range(iterations):
+        px = c[:, 0, None, None] + steps[None, None, :] * ray[None, :, 0, None]
+        py = c[:, 1, None, None] + steps[None, None, :] * ray[None, :, 1, None]
+        m, k, s = px.shape
+        prof = cv2.remap(smooth, px.reshape(m * k, s).astype(np.float32), py.reshape(m * k, s).astype(np.float32),
+                         cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        drop = (prof[:, :-2] - prof[:, 2:]) / 2.0
+        sharp = drop - cv2.filter2D(drop, -1, kernel[None, :], borderType=cv2.BORDER_REPLICATE)
+        sharp = sharp.reshape(m, k, s - 2)
+        allowed = (mid[None, None, :] >= 0.86 * radius[:, None, None]) & (mid[None, None, :] <= 1.16 * radius[:, None, None])
+        sharp = np.where(allowed, sharp, -np.inf)
+        best = np.argmax(sharp, axis=2)
+        peak = np.take_along_axis(sharp, best[..., None], 2)[..., 0]
+        lo = np.take_along_axis(sharp, np.clip(best - 1, 0, s - 3)[..., None], 2)[..., 0]
+        hi = np.take_along_axis(sharp, np.clip(best + 1, 0, s - 3)[..., None], 2)[..., 0]
+        ok = np.isfinite(peak) & (peak > 0)
+        lo, hi = np.where(np.isfinite(lo), lo, peak), np.where(np.isfinite(hi), hi, peak)
+        denom = np.where(ok, lo - 2 * peak + hi, -1.0)
+        frac = np.where(ok & (np.abs(denom) > 1e-6), 0.5 * (lo - hi) / np.where(denom == 0, -1.0, denom), 0.0)
+        edge = mid[best] + 0.5 * np.clip(np.nan_to_num(frac), -0.5, 0.5) - radius[:, None]
+        # rays weighted by edge strength: where a sphere touches a neighbour
+        # its outline is faint and least trustworthy
+        wt = np.where(ok, peak, 0.0)
+        wt = wt / np.maximum(wt.mean(axis=1, keepdims=True), 1e-9)
+        w = ok.astype(float) * wt
+        for _ in range(3):
+            aw = a * w[..., None]
+            ata = np.einsum("mki,mkj->mij", aw, a) + 1e-6 * np.eye(3)
+            sol = np.linalg.solve(ata, np.einsum("mki,mk->mi", aw, edge)[..., None])[..., 0]
+            resid = np.abs(edge - np.einsum("mki,mi->mk", a, sol))
+            scale = np.maximum(0.7, 2.5 * np.median(resid, axis=1, keepdims=True))
+            w = (ok & (resid < scale)).astype(float) * wt
+        good = (w > 0).sum(axis=1) >= 6
+        c[good] += np.clip(sol[good, :2], -3.0, 3.0)
+    return c
+
+
+def ring_centre(patch: np.ndarray, d: float) -> tuple[float, float, float]:
+    """Centre (x, y) and radius [px] of the sphere in the middle of ``patch``.
+
+    The circle of radius within 3 % of d/2 and centre within d/4 of the
+    middle across which the brightness falls most, on average, going outward.
+    Works on a mean appearance, where the outline is clean.
+    """
+    h, w = patch.shape
+    mid = np.array([(w - 1) / 2, (h - 1) / 2])
+    theta = np.linspace(0, 2 * np.pi, 72, endpoint=False)
+    ray = np.stack([np.cos(theta), np.sin(theta)], axis=1)
+    radii = 0.5 * d * np.linspace(0.97, 1.03, 3)
+    best = (-np.inf, mid[0], mid[1], 0.5 * d)
+    for step, span in ((1.0, 0.2 * d), (0.2, 1.2)):
+        offs = np.arange(-span, span + 1e-9, step)
+        ox, oy = np.meshgrid(offs + best[1] - mid[0], offs + best[2] - mid[1])
+        cx, cy = (mid[0] + ox).ravel(), (mid[1] + oy).ravel()
+        score = _ring_scores(patch, cx, cy, radii, ray)
+        i, j = np.unravel_index(np.argmax(score), score.shape)
+        best = (score[i, j], cx[i], cy[i], radii[j])
+    return float(best[1]), float(best[2]), float(best[3])
+
+
+def _ring_scores(patch, cx, cy, radii, ray) -> np.ndarray:
+    """Mean outward brightness drop on circles (centre i, radius j): (n_centres, n_radii)."""
+    pts_in = (radii[None, :, None] - 0.75)[..., None] * ray[None, None]
+    pts_out = (radii[None, :, None] + 0.75)[..., None] * ray[None, None]
+    base = np.stack([cx, cy], axis=1)[:, None, None, :]
+    xin, xout = base + pts_in, base + pts_out
+    n, m, k, _ = xin.shape
+    flat = np.concatenate([xin, xout], axis=2).reshape(n * m, 2 * k, 2).astype(np.float32)
+    vals = cv2.remap(patch, flat[..., 0], flat[..., 1], cv2.INTER_LINEAR,
+                     borderMode=cv2.BORDER_REPLICATE).reshape(n, m, 2 * k)
+    return (vals[..., :k] - vals[..., k:]).mean(axis=2)
