@@ -5,7 +5,9 @@ packing each): render the mixing map over N frames, analyse them, match the
 detected spheres to the true ones (within 0.3 D) and report recall,
 precision, the raw map's RMSD, the worst layer's count error summed over the
 run, and per material the centre bias and 95th-percentile centre error [px].
-The last line per scene pools the layer counts over all seeds.
+The last line per scene pools the layer counts over all seeds. ``--set
+KEY=VALUE`` overrides a render setting of every scene (e.g. the lamps:
+``--set lighting=diffuse``; VALUE is read as JSON when it parses).
 
     PYTHONPATH=python python benches/bench_measure_accuracy.py --seeds 7 8 9 10 11 12 13 14 \
         --json benches/results/measure_accuracy.json
@@ -14,6 +16,7 @@ The last line per scene pools the layer counts over all seeds.
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 import tempfile
 from pathlib import Path
@@ -52,19 +55,33 @@ def score(r, a) -> dict:
     return out
 
 
+def _setting(item: str) -> tuple[str, object]:
+    key, sep, value = item.partition("=")
+    if not sep:
+        raise SystemExit(f"--set {item!r}: expected KEY=VALUE")
+    try:
+        return key, json.loads(value)
+    except json.JSONDecodeError:
+        return key, value
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--seeds", type=int, nargs="+", default=[7, 8, 9, 10])
     ap.add_argument("--frames", type=int, default=6)
     ap.add_argument("--scenes", nargs="+", default=list(SCENES), choices=list(SCENES))
+    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                    help="override a render_frames setting of every scene")
     ap.add_argument("--json", type=Path, default=None, help="also write the figures here")
     args = ap.parse_args()
+    overrides = dict(_setting(item) for item in args.set)
     results = {}
     for name in args.scenes:
         runs, detected, true = {}, 0, 0
         for seed in args.seeds:
             with tempfile.TemporaryDirectory() as tmp:
-                r = render_frames(mixing_map(args.frames), seed=seed, out_dir=Path(tmp), **SCENES[name])
+                r = render_frames(mixing_map(args.frames), seed=seed, out_dir=Path(tmp),
+                                  **{**SCENES[name], **overrides})
                 a = analyze(Path(tmp), smooth=1, save=False, progress=False, workers=2)
             runs[seed] = s = score(r, a)
             detected, true = detected + a.n.sum(axis=0), true + r.n.sum(axis=0)
