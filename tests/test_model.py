@@ -156,6 +156,19 @@ def test_sweep_matches_single_runs_and_orders_case_major():
     np.testing.assert_allclose(res.layers[6], one, atol=1e-14)
 
 
+def test_sweep_takes_output_times_per_case():
+    cases = [dict(c0=0.3), dict(c0=0.6)]
+    times = [np.arange(0, 601, 60.0), np.array([5.0, 50.0, 500.0])]
+    res = granseg.sweep({"k": [0.6]}, cases=cases, t=times, n_cells=60)
+    assert [lay.shape for lay in res.layers] == [(11, 15), (3, 15)]
+    one = granseg.simulate(**cases[1], k=0.6, t=times[1], n_cells=60).layers()
+    np.testing.assert_allclose(res.layers[1], one, atol=1e-14)
+    with pytest.raises(ValueError, match="2 cases"):
+        granseg.sweep(None, cases=cases, t=[times[0]])
+    with pytest.raises(ValueError, match=r"t\[1\]"):
+        granseg.sweep(None, cases=cases, t=[times[0], [3.0, 1.0]])
+
+
 def test_sweep_rmsd_against_measured_maps():
     t = np.arange(0, 1201, 30.0)
     truth = granseg.simulate(k=0.6, delta_over_H=0.2, t=t, n_cells=90).layers()

@@ -79,6 +79,17 @@ def _times(t: Any, name: str = "t") -> np.ndarray:
     return arr
 
 
+def _case_times(t: Any, n_cases: int) -> list[np.ndarray]:
+    """Output times of every case: ``t`` is one array for all, or a list of one array per case."""
+    per_case = isinstance(t, list | tuple) and len(t) > 0 and all(np.ndim(ti) == 1 for ti in t)
+    if not per_case:
+        common = _times(t)
+        return [common] * n_cases
+    if len(t) != n_cases:
+        raise ValueError(f"t has {len(t)} time arrays but there are {n_cases} cases")
+    return [_times(ti, f"t[{i}]") for i, ti in enumerate(t)]
+
+
 def _solver_options(n_cells: Any, rtol: float | None, atol: float | None) -> tuple[int, float, float]:
     if isinstance(n_cells, bool) or not isinstance(n_cells, int | np.integer):
         raise ValueError(f"n_cells = {n_cells!r} must be an integer >= 15")
@@ -313,7 +324,8 @@ def sweep(
         (``itertools.product`` order, last key fastest).
     base : parameters of a single experiment (alternative to ``cases``).
     cases : one parameter dict per experiment; every case is crossed with the grid.
-    t : common output times, s. Required unless ``measured`` is given.
+    t : output times, s: one array for every case, or a list of one array per
+        case. Required unless ``measured`` is given.
     measured : one measured map per case (dict or Map with ``c`` (n_t, n_layers),
         ``t`` (n_t,), optional ``smoothing_frames``). The model is evaluated at
         the map's times, smoothed like the map, and its RMSD returned.
@@ -341,9 +353,8 @@ def sweep(
     else:
         if t is None:
             raise ValueError("t (output times, s) is required when no measured maps are given")
-        common = _times(t)
+        case_t = _case_times(t, len(case_list))
         meas = [None] * len(case_list)
-        case_t = [common] * len(case_list)
 
     run_params, run_points, run_case = [], [], []
     for ci, case in enumerate(case_list):

@@ -66,8 +66,8 @@ class Data:
 
 
 def _request(ext: Extension, x: Mapping[str, float], exp: ExpInfo, m: Map
-             ) -> tuple[dict[str, float], dict[str, Any], np.ndarray]:
-    """Solver case, measured-grid request and index back to the map's times."""
+             ) -> tuple[dict[str, float], np.ndarray, np.ndarray]:
+    """Solver case, output times and index back to the map's times."""
     tm = m.t - ext.time_shift(x, exp)
     positive = tm > 0
     req = tm[positive]
@@ -77,8 +77,7 @@ def _request(ext: Extension, x: Mapping[str, float], exp: ExpInfo, m: Map
         idx[positive] = np.arange(1, req.size)
     else:
         idx[:] = np.arange(req.size)
-    meas = {"c": np.zeros((req.size, m.n_layers)), "t": req, "smoothing_frames": 1}
-    return ext.solver_params(x, exp), meas, idx
+    return ext.solver_params(x, exp), req, idx
 
 
 def model_maps(data: Data, ext: Extension, runs: Sequence[tuple[Mapping[str, float], int]]
@@ -90,14 +89,14 @@ def model_maps(data: Data, ext: Extension, runs: Sequence[tuple[Mapping[str, flo
     """
     from granseg.model import sweep
 
-    cases, measured, back = [], [], []
+    cases, times, back = [], [], []
     for x, i in runs:
-        case, meas, idx = _request(ext, x, data.exps[i], data.maps[i])
+        case, req, idx = _request(ext, x, data.exps[i], data.maps[i])
         cases.append(case)
-        measured.append(meas)
+        times.append(req)
         back.append(idx)
     t0 = time.perf_counter()
-    res = sweep(cases=cases, measured=measured, progress=False, **data.opts)
+    res = sweep(cases=cases, t=times, progress=False, **data.opts)
     data.sweep_seconds += time.perf_counter() - t0
     data.n_runs += len(cases)
     data.n_sweeps += 1
