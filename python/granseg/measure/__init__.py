@@ -6,8 +6,10 @@
     load_experiment(path)       read and check experiment.json
 
 Stages, one module each: experiment (the JSON), sources (frames, video),
-camera (undistortion, calibration), detect (spheres), classify (heavy or
-light by colour), layers (binning), pipeline (the run), preview (images).
+camera (undistortion, calibration), detect (spheres: learning, then per
+frame templates -> matches over the sphere disk, outline -> centres), classify
+(heavy or light by colour), layers (binning), pipeline (the run), preview
+(images).
 """
 
 from __future__ import annotations

@@ -4,7 +4,7 @@ Each scene is a dict of keyword arguments: the two materials, the lamps, the
 lens, blur, noise and compression. Together they cover the five materials
 of the paper's mixtures (steel, ceramic, glass, dark POM, coloured PP), a
 single side lamp (the hardest shading), a strong barrel lens, heavy JPEG
-compression and small spheres. The measurement tests
+compression, and spheres 20 to 64 px across. The measurement tests
 (tests/test_measure_accuracy.py) and the accuracy benchmark
 (benches/bench_measure_accuracy.py) render them; a user can render them to
 see what the detector is tested on.
@@ -28,6 +28,8 @@ SCENES: dict[str, dict[str, Any]] = {
     "glass-pom": dict(heavy="glass", light="pom"),
     "steel-ceramic-diffuse-small": dict(heavy="steel", light="ceramic", lighting="diffuse",
                                         particle_diameter_px=20, image_size=(400, 480)),
+    # the window filling most of the frame, as when filming a 15 D bed with a 1200 px sensor
+    "pom-pp-large": dict(heavy="pom", light="pp", particle_diameter_px=64, image_size=(1000, 1200)),
 }
 
 
