@@ -28,7 +28,8 @@ TEMPLATE_HALF = 0.75  # template half-size [d]: the sphere, its outline and the 
 DISK = 1.05  # radius of the matched disk [sphere radii]: the sphere and its outline
 MIN_SCORE = 0.2  # correlation below which no local maximum is a candidate
 KEEP = 0.5  # spheres matching worse than this share of their group's median are dropped
-SEARCH_PX = 3  # how far a candidate may move to its own group's best match [px]
+SEARCH_PX = 3  # how far a candidate may move to its own group's best match [px of the match scale]
+MATCH_DIAMETER_PX = 32.0  # the disk correlation runs where spheres are at most this wide
 
 
 @dataclass(frozen=True)
@@ -119,32 +120,51 @@ def _appearance_groups(colour: np.ndarray) -> np.ndarray:
 class DiskScores:
     """Per group, the correlation of its template's disk with the image at every position.
 
-    maps: (k, H', W'); maps[g, i, j] is the score with the template's top-left
-    at padded pixel (j, i), i.e. its middle at image pixel (j + half - pad, i + half - pad).
+    Computed where a sphere is at most MATCH_DIAMETER_PX across (the image
+    and the templates shrunk by ``scale``): the match only has to start the
+    outline fit, which works at full resolution, within a fraction of a
+    pixel, and on 80 px spheres the full-size correlation took 86 ms a frame.
+    maps: (k, H', W'); maps[g, i, j] is the score with the shrunk template's
+    top-left at padded pixel (j, i) of the shrunk image.
     """
 
     maps: np.ndarray
     pad: int
     half: int
+    scale: float  # shrunk size / true size (the templates' own, within a pixel of the image's)
 
     @classmethod
     def of(cls, smooth: np.ndarray, templates: Templates) -> DiskScores:
-        pad = templates.half + SEARCH_PX + 2
-        padded = cv2.copyMakeBorder(smooth, pad, pad, pad, pad, cv2.BORDER_REPLICATE)
+        scale = min(1.0, MATCH_DIAMETER_PX / templates.d)
+        size = 2 * templates.half + 1
+        small_size = size if scale == 1.0 else max(3, int(round(size * scale)) | 1)
+        scale = small_size / size
+        image, patches, disks = smooth, templates.patches, templates.disks
+        if small_size != size:
+            image = cv2.resize(smooth, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA)
+            patches = [cv2.resize(t, (small_size, small_size), interpolation=cv2.INTER_AREA) for t in patches]
+            disks = [_disk(small_size, off * scale, DISK * r * scale)
+                     for off, r in zip(templates.offsets, templates.radii, strict=True)]
+        half = (small_size - 1) // 2
+        pad = half + SEARCH_PX + 2
+        padded = cv2.copyMakeBorder(image, pad, pad, pad, pad, cv2.BORDER_REPLICATE)
         padded -= padded.mean()  # keeps the float32 sums of squares precise
-        maps = np.stack([_masked_correlation(padded, t, m) for t, m in zip(templates.patches, templates.disks,
-                                                                               strict=True)])
-        return cls(maps, pad, templates.half)
+        maps = np.stack([_masked_correlation(padded, t, m) for t, m in zip(patches, disks, strict=True)])
+        return cls(maps, pad, half, scale)
 
     def to_image(self, col: np.ndarray, row: np.ndarray, offset: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Sphere centre (x, y) [px] for a (sub-pixel) map position and its group's offset (m, 2)."""
+        """Sphere centre (x, y) [px] for a (sub-pixel) map position and its group's offset (m, 2) [px]."""
         shift = self.half - self.pad
-        return col + shift + offset[:, 0], row + shift + offset[:, 1]
+        x = (col + shift + 0.5) / self.scale - 0.5 + offset[:, 0]
+        y = (row + shift + 0.5) / self.scale - 0.5 + offset[:, 1]
+        return x, y
 
     def to_map(self, x: np.ndarray, y: np.ndarray, offset: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Nearest whole map position (col, row) for sphere centres (x, y)."""
+        """Nearest whole map position (col, row) for sphere centres (x, y) [px]."""
         shift = self.half - self.pad
-        return np.rint(x - offset[:, 0] - shift).astype(int), np.rint(y - offset[:, 1] - shift).astype(int)
+        col = (x - offset[:, 0] + 0.5) * self.scale - 0.5 - shift
+        row = (y - offset[:, 1] + 0.5) * self.scale - 0.5 - shift
+        return np.rint(col).astype(int), np.rint(row).astype(int)
 
 
 def find_spheres(smooth: np.ndarray, image: np.ndarray, templates: Templates) -> np.ndarray:
@@ -165,7 +185,7 @@ def _peaks(scores: DiskScores, templates: Templates) -> np.ndarray:
     d = templates.d
     best = np.argmax(scores.maps, axis=0)
     score = scores.maps.max(axis=0)
-    size = max(3, int(0.6 * d) | 1)
+    size = max(3, int(0.6 * d * scores.scale) | 1)
     peak = (score >= cv2.dilate(score, np.ones((size, size), np.uint8))) & (score > MIN_SCORE)
     peak[[0, -1], :] = peak[:, [0, -1]] = False
     rows, cols = np.nonzero(peak)
