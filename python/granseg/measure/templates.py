@@ -260,7 +260,7 @@ def _masked_correlation(image: np.ndarray, template: np.ndarray, mask: np.ndarra
     """Normalised cross-correlation of ``template`` with ``image`` over the pixels where ``mask`` is 1.
 
     As ``cv2.matchTemplate(..., TM_CCOEFF_NORMED, mask=mask)``, but from three
-    plain correlations (a quarter of the time): the template made zero-mean
+    plain correlations (a third of the time): the template made zero-mean
     on the mask, and the mask's sums of the image and of its square.
     """
     n = float(mask.sum())
