@@ -202,3 +202,51 @@ def test_load_campaign_then_calibrate_without_refine(tmp_path, maps):
     assert not cal.refined and all(np.isnan(v) for v in cal.stderr.values())
     assert cal.best == cal.grid_points[cal.best_grid_index]
     assert cal.to_json()["rmsd_mean"] == pytest.approx(cal.grid_mean[cal.best_grid_index])
+
+
+def test_refinement_counts_every_experiment_the_same():
+    """Two experiments the model cannot both fit, one filmed ten times longer: the refined
+    point minimises the sum of the experiments' mean squared errors (the criterion the
+    factorial table ranks by, and the diagnosis's), not the pooled sum of squares that
+    the long experiment would dominate."""
+    maps = []
+    for (name, heavy, rho_h, c0, m_g), truth, t in zip(
+            EXPERIMENTS[:2], [TRUTH, {"k": 0.72, "delta_over_H": 0.17}],
+            [np.arange(0.0, 3000.0, 100.0), np.arange(0.0, 6000.0, 10.0)], strict=True):
+        light = name.split("-")[1]
+        sol = granseg.simulate(rho_h=rho_h, rho_l=RHO[light], c0=c0, t=t, n_cells=N_CELLS, **truth)
+        maps.append(Map(c=np.clip(np.asarray(sol.layers()), 0, 1), t=t, z=(np.arange(15) + 0.5) * 6e-3,
+                        name=name, heavy=heavy, light=light, rho_h=rho_h, rho_l=RHO[light], c0=c0,
+                        M_g=m_g, M_w=1.093))
+    cal = calibrate(maps, n_cells=N_CELLS, progress=False)
+    assert cal.converged, cal.message
+
+    def sum_mse(point):
+        res = granseg.sweep(None, cases=[{**m.case(), **point} for m in maps],
+                            measured=[m.measured() for m in maps], n_cells=N_CELLS)
+        return float(np.sum(np.asarray(res.rmsd) ** 2))
+
+    best = dict(cal.best)
+    at_best = sum_mse(best)
+    for key in best:
+        for step in (-0.005, 0.005):
+            moved = {**best, key: best[key] * (1 + step)}
+            assert at_best <= sum_mse(moved) * (1 + 1e-9), (key, step)
+
+
+def test_optimum_on_a_bound_is_flagged(maps, capsys):
+    """Bounds that exclude the truth (k = 0.62): the refinement stops on k's upper bound,
+    says so in the result, warns, and the CLI summary tells how to widen the range."""
+    from granseg.calibration import CalibrationWarning
+    from granseg.cli.calibrate import summary
+
+    with pytest.warns(CalibrationWarning, match="k = 0.6 lies on a bound"):
+        cal = calibrate(maps, n_cells=N_CELLS, progress=False, bounds={"k": (0.5, 0.6)})
+    assert cal.at_bound == ["k"] and cal.best["k"] == pytest.approx(0.6)
+    assert cal.to_json()["at_bound"] == ["k"]
+    assert "--bounds k=LO:HI" in summary(cal)
+    from granseg.report.html import _summary
+
+    assert "k ended on a bound" in _summary({"calibration": cal.to_json()})
+    free = calibrate(maps, n_cells=N_CELLS, progress=False)
+    assert free.at_bound == []

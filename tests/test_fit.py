@@ -131,3 +131,27 @@ def test_fit_campaign_too_few_for_laws_says_why(tmp_path):
     fits = fit_campaign(load_campaign(tmp_path))
     assert fits.beta is None and fits.tau is None
     assert any("beta law not fitted" in n for n in fits.notes)
+
+
+def test_weighted_covariance_matches_the_scatter_of_weighted_fits():
+    """Straight-line fits weighting a 10-point and a 200-point group equally: the
+    sandwich covariance matches the scatter over noise draws; equal weights give
+    the plain covariance."""
+    from granseg.fit import covariance, weighted_covariance
+
+    rng = np.random.default_rng(3)
+    x = np.concatenate([np.linspace(0, 1, 10), np.linspace(0.5, 3, 200)])
+    w = np.concatenate([np.full(10, 1 / np.sqrt(10)), np.full(200, 1 / np.sqrt(200))])
+    jac = -np.column_stack([np.ones_like(x), x]) * w[:, None]  # of the weighted residuals w (y - a - b x)
+    fits, covs = [], []
+    for _ in range(400):
+        y = 1.0 + 2.0 * x + rng.normal(0, 0.1, x.size)
+        p = np.linalg.lstsq(-jac, y * w, rcond=None)[0]
+        fits.append(p)
+        covs.append(weighted_covariance(jac, (y - p[0] - p[1] * x) * w, w, 2))
+    scatter, mean_cov = np.cov(np.array(fits).T), np.mean(covs, axis=0)
+    np.testing.assert_allclose(np.sqrt(np.diag(mean_cov)), np.sqrt(np.diag(scatter)), rtol=0.15)
+    r = rng.normal(0, 0.1, x.size)
+    np.testing.assert_allclose(weighted_covariance(-np.column_stack([np.ones_like(x), x]) * 0.5, r * 0.5,
+                                                   np.full(x.size, 0.5), 2),
+                               covariance(-np.column_stack([np.ones_like(x), x]), r, 2), rtol=1e-12)

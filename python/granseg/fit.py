@@ -46,6 +46,7 @@ __all__ = [
     "fit_tau",
     "fit_campaign",
     "covariance",
+    "weighted_covariance",
 ]
 
 TANH_TO_88 = float(np.tanh(1.0))  # f(tau) = A/2 (1 + tanh 1) = 0.8808 A
@@ -114,6 +115,25 @@ def covariance(jac: np.ndarray, residuals: np.ndarray, n_params: int) -> np.ndar
         return np.full((n_params, n_params), np.nan)
     s2 = float(residuals @ residuals) / (m - n_params)
     return s2 * np.linalg.pinv(jac.T @ jac)
+
+
+def weighted_covariance(jac: np.ndarray, residuals: np.ndarray, weights: np.ndarray,
+                        n_params: int) -> np.ndarray:
+    """Covariance of a fit that minimised the weighted residuals ``weights * r``.
+
+    ``jac`` (m, p) and ``residuals`` (m,) are those of the weighted residuals.
+    The weights set what the fit cares about, not the errors: those are taken
+    equal for every entry, with s^2 from the unweighted residuals, so the
+    covariance is the sandwich s^2 A (J^T W^2 J) A, A = (J^T J)^+. Equal
+    weights give :func:`covariance`.
+    """
+    m = residuals.size
+    if m <= n_params:
+        return np.full((n_params, n_params), np.nan)
+    raw = residuals / weights
+    s2 = float(raw @ raw) / (m - n_params)
+    a = np.linalg.pinv(jac.T @ jac)
+    return s2 * a @ (jac.T @ (jac * (weights**2)[:, None])) @ a
 
 
 def _finite_xy(x: Any, y: Any, what: str, min_points: int) -> tuple[np.ndarray, np.ndarray]:

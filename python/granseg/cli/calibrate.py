@@ -119,6 +119,9 @@ def summary(cal: Any) -> str:
     pars = ", ".join(f"{k} = {v:.4f} +- {cal.stderr[k]:.4f}" for k, v in cal.best.items())
     lines = [f"\n{what}: {pars}; mean RMSD {cal.rmsd_mean:.4f}"
              + ("" if cal.converged else f" ({cal.message})")]
+    for k in cal.at_bound:
+        lines.append(f"  note: {k} ended on a bound of its range {cal.settings['bounds'][k]}: the optimum may "
+                     f"lie beyond it; widen it with --bounds {k}=LO:HI")
     for name, r in cal.rmsd.items():
         lines.append(f"  {name:>12}  RMSD {r:.4f}")
     if cal.per_experiment:

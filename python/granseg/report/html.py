@@ -76,6 +76,9 @@ def _summary(d: Mapping[str, Any]) -> str:
     state = "refined by bounded least squares" if cal["refined"] else "best grid point (no refinement)"
     warn = "" if cal["converged"] else f'<p class="warn">Refinement did not converge: {_e(cal["message"])}</p>'
     s = cal["settings"]
+    for k in cal.get("at_bound", []):
+        warn += (f'<p class="warn">{_e(k)} ended on a bound of its range {_e(str(s["bounds"][k]))}: '
+                 "the optimum may lie beyond it (widen the bounds).</p>")
     return (f"<h2>Calibrated parameters</h2><p class='key'>Optimum {state} "
             f"(&plusmn; one standard error from the Jacobian).</p>{warn}"
             + _table(["parameter", "value"], rows)
