@@ -61,7 +61,7 @@ def test_packing_is_dense_random_and_free_of_overlaps():
     assert 0.95 < n_area < 1.1  # spheres per d^2: dense (hexagonal 1.15)
 
 
-@pytest.mark.parametrize("material", ["steel", "ceramic", "glass", "pom", "pp"])
+@pytest.mark.parametrize("material", ["steel", "ceramic", "glass", "pom", "pp", "steel-polished", "pom-grey", "pp-grey"])
 def test_each_material_draws_distinct_spheres(material):
     c = np.ones((1, 15))
     r = render_frames(c, heavy=material, light="pp" if material != "pp" else "pom",

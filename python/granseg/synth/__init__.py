@@ -4,7 +4,11 @@
 follows the map ``c`` (see :mod:`granseg.synth.frames`);
 ``render_checkerboard(...)`` draws a calibration target through a lens;
 ``campaign(...)`` builds a set of virtual experiments (granseg.synth.virtual);
-``SCENES`` names the renderer settings the detector is tested on.
+``SCENES`` names the renderer settings the detector is tested on;
+``MIXTURE_SCENES`` (the paper's six mixtures, grey-on-grey pairs) and
+``APPARATUS_SCENES`` (bumpy lid and plate, motion blur, wall reflections,
+dust, wide-angle lens, JPEG and video) the harder looks it must yet handle;
+``render_scene(name, n_t)`` renders any of them.
 """
 
 from __future__ import annotations
@@ -13,16 +17,26 @@ from typing import Any
 
 from granseg.synth.frames import (
     MATERIAL_LOOKS,
+    VIDEO_CODECS,
     RenderedFrames,
     default_camera,
     render_checkerboard,
     render_frames,
 )
-from granseg.synth.scenes import SCENES, mixing_map
+from granseg.synth.scenes import (
+    APPARATUS_SCENES,
+    MIXTURE_SCENES,
+    SCENES,
+    WIDE_ANGLE,
+    mixing_map,
+    render_scene,
+    scene_names,
+)
 
 __all__ = [
-    "MATERIAL_LOOKS", "SCENES", "TABLE1", "Condition", "RenderedFrames", "campaign", "default_camera",
-    "mixing_map", "random_conditions", "random_effect", "render_checkerboard", "render_frames",
+    "APPARATUS_SCENES", "MATERIAL_LOOKS", "MIXTURE_SCENES", "SCENES", "TABLE1", "VIDEO_CODECS", "WIDE_ANGLE",
+    "Condition", "RenderedFrames", "campaign", "default_camera", "mixing_map", "random_conditions",
+    "random_effect", "render_checkerboard", "render_frames", "render_scene", "scene_names",
 ]
 
 

@@ -6,7 +6,11 @@ sheared sideways with the wall-adjacent velocity profile (fast at the bottom
 plate, still under the lid), shaded by material (metallic steel, white ceramic,
 transparent glass, dark POM, coloured polypropylene), seen through a
 barrel-distorting lens given as an OpenCV camera model, with blur, sensor
-noise and JPEG artefacts. Which grains are heavy follows a given
+noise and JPEG artefacts. Optional apparatus features: the bumpy lid and
+plate (hemispheres on the horizontal walls, which are not grains), motion
+blur of the fast lower layers, reflections of the lamps on the curved PMMA
+wall, dust and scratches on the wall, and lossy video (MPEG-4 Part 2 or
+H.264) instead of still frames. Which grains are heavy follows a given
 concentration map layer by layer, and the exact centres and per-layer counts
 come back with the images, so that the measurement pipeline can be tested
 against known answers (and users can check their camera settings).
@@ -29,12 +33,17 @@ from typing import Any
 import cv2
 import numpy as np
 
-__all__ = ["MATERIAL_LOOKS", "RenderedFrames", "default_camera", "render_frames", "render_checkerboard"]
+__all__ = ["MATERIAL_LOOKS", "VIDEO_CODECS", "RenderedFrames", "default_camera", "render_frames",
+           "render_checkerboard"]
 
 # How each material looks. colour: B, G, R in [0, 1]; kd/ks: diffuse and
 # specular weights; shininess: Blinn-Phong exponent; metal: mirror-like
 # reflection of the surroundings; glass: transparent, shows the grains behind;
-# size_spread: relative standard deviation of the diameter.
+# size_spread: relative standard deviation of the diameter. Optional keys:
+# material: the MODEL.md material whose density the look takes (default: the
+# look's own name); mirror: a polished metal that shows a sharp image of its
+# surroundings (dark lab and camera, lit ceiling, the lamps' panels) rather
+# than the soft sheen of ``metal``.
 MATERIAL_LOOKS: dict[str, dict[str, Any]] = {
     "steel": dict(colour=(0.60, 0.60, 0.62), kd=0.25, ks=0.9, shininess=80, metal=True,
                   glass=False, size_spread=0.004),
@@ -46,7 +55,29 @@ MATERIAL_LOOKS: dict[str, dict[str, Any]] = {
                 glass=False, size_spread=0.01),
     "pp": dict(colour=(0.16, 0.22, 0.80), kd=0.9, ks=0.35, shininess=25, metal=False,
                glass=False, size_spread=0.008),
+    # Polished (mirror-finish) bearing steel: a mirror of its surroundings,
+    # dark where it shows the camera, the lab and the bed, a bright cap where
+    # it shows the lit room above, and sharp-edged images of the two lamp
+    # panels; on average hardly brighter than dark POM.
+    "steel-polished": dict(colour=(0.66, 0.66, 0.68), kd=0.0, ks=0.6, shininess=600, metal=True,
+                           glass=False, size_spread=0.004, material="steel", mirror=True),
+    # Light-grey filled POM, matte: a mid grey with a faint broad sheen.
+    "pom-grey": dict(colour=(0.43, 0.43, 0.44), kd=0.9, ks=0.10, shininess=10, metal=False,
+                     glass=False, size_spread=0.01, material="pom"),
+    # Glossy grey polypropylene: nearly the mean brightness of pom-grey (a
+    # little darker body, a small strong highlight), so the two differ in gloss only.
+    "pp-grey": dict(colour=(0.42, 0.42, 0.43), kd=0.9, ks=0.75, shininess=90, metal=False,
+                    glass=False, size_spread=0.008, material="pp"),
 }
+
+# Printed PLA of the bumpy lid and plate (the paper's horizontal walls): matte grey.
+WALL_LOOK: dict[str, Any] = dict(colour=(0.38, 0.38, 0.40), kd=0.85, ks=0.25, shininess=15, metal=False,
+                                 glass=False, size_spread=0.0, name="pla")
+
+# Video codecs of render_frames(video=...): MPEG-4 Part 2 through OpenCV, H.264 through PyAV (libx264).
+VIDEO_CODECS = ("mp4v", "h264")
+VIDEO_PLAYBACK_FPS = 30.0  # frame rate stored in the video file (a GoPro time-lapse video plays at 30 fps)
+VIDEO_BITS_PER_PIXEL = 0.25  # default bitrate of an encoder that takes one: bits per pixel and frame
 
 # Lamp directions (towards the lamp; x right, y down, z towards the camera).
 LIGHTINGS: dict[str, list[tuple[float, float, float, float]]] = {
@@ -73,7 +104,15 @@ class RenderedFrames:
         is in each layer of the window, layer 0 at the bottom.
     c_raw: (n_t, n_layers) float, n_heavy / n.
     experiment: the ``experiment.json`` content describing these frames.
-    paths: files written (frames, then experiment.json), empty if none.
+    paths: files written (frames or the video, then experiment.json), empty if none.
+    bumps: per frame, a (k, 4) float array of the bumps of the lid and plate
+        (``bumps=True``) within one diameter of the window: x, y [undistorted
+        px] of the centre of the hemisphere's sphere (on the wall's surface:
+        y = y0 for the lid, y1 for the plate), diameter [px], on_plate (1/0).
+        They are not grains: never in ``particles`` nor in the counts. Empty
+        (0, 4) arrays without bumps.
+    source: what to give :func:`granseg.measure.analyze`: the frames
+        directory or the video file (None if nothing was written).
     """
 
     images: list[np.ndarray]
@@ -83,6 +122,8 @@ class RenderedFrames:
     c_raw: np.ndarray
     experiment: dict[str, Any]
     paths: list[Path] = field(default_factory=list)
+    bumps: list[np.ndarray] = field(default_factory=list)
+    source: Path | None = None
 
 
 def default_camera(image_size: tuple[int, int], k1: float = -0.12) -> tuple[np.ndarray, np.ndarray]:
@@ -121,6 +162,13 @@ def render_frames(
     out_dir: str | os.PathLike | None = None,
     experiment: dict[str, Any] | None = None,
     force: bool = False,
+    bumps: bool = False,
+    bump_spacing: float = 3.0,
+    smear_diameters: float = 0.0,
+    wall_reflections: float = 0.0,
+    dust: int = 0,
+    video: str | None = None,
+    video_bitrate: float | None = None,
 ) -> RenderedFrames:
     """Render frames whose per-layer heavy share follows the map ``c``.
 
@@ -161,6 +209,34 @@ def render_frames(
         ``experiment.json`` are written there (atomically; existing files are
         kept unless ``force``).
     experiment : extra or overriding experiment.json fields (e.g. rho_h).
+    bumps : draw the bumpy lid and plate: hemispheres one diameter across,
+        their flat side on the wall, along the top (y0) and bottom (y1) of
+        the bed, at random centre spacings of 0.7-1.3 x ``bump_spacing``
+        diameters (the paper's 2 D between edges: 3 D). The plate's bumps
+        move by ``bottom_shift_px`` per frame, the lid's stay; the grains
+        pack around them. They are not grains: their positions come back in
+        ``RenderedFrames.bumps``, never in the counts.
+    smear_diameters : motion blur: the horizontal smear of a grain touching
+        the plate during one exposure, in diameters (plate speed x exposure
+        / D; the paper's 0.17 m/s at 1/60 s over 6 mm spheres: 0.47);
+        higher up the smear decays with the shift's profile, the plate's
+        bumps smear by the full length. The true centre is the centre of the
+        smear (mid-exposure). 0: sharp.
+    wall_reflections : strength of the lamps' reflections on the curved PMMA
+        wall (1 = typical, ``True`` = 1): soft-edged bright vertical bands, a
+        few px to a diameter wide, static over the frames, over everything behind.
+    dust : number of dust specks (small dark or bright dots) on the wall; one
+        thin scratch comes with every eight specks (at least one). Static.
+    video : None for still frames, else write (and return, decoded) a lossy
+        video: "mp4v" (MPEG-4 Part 2 by OpenCV's VideoWriter, which sets the
+        bitrate itself) or "h264" (libx264 through PyAV: ``pip install
+        av``). The file ``video.mp4`` in ``out_dir`` plays at 30 fps (a
+        GoPro time-lapse video); ``fps`` stays the capture rate in
+        experiment.json. Without ``out_dir`` the video is encoded in a
+        temporary file and only the decoded frames are kept.
+    video_bitrate : bits per second at the 30 fps playback rate; default
+        (h264) 0.25 bit per pixel and frame, where compression artefacts
+        show. With "mp4v" a bitrate needs PyAV (its MPEG-4 Part 2 encoder).
 
     Returns
     -------
@@ -168,6 +244,7 @@ def render_frames(
     """
     cmap = _check_map(c)
     heavy_look, light_look = _look(heavy, colours), _look(light, colours)
+    apparatus = _apparatus(bumps, bump_spacing, smear_diameters, wall_reflections, dust, video, video_bitrate)
     d = float(particle_diameter_px)
     if not np.isfinite(d) or d < 8:
         raise ValueError(f"particle_diameter_px must be >= 8 px, got {particle_diameter_px!r}")
@@ -175,11 +252,16 @@ def render_frames(
     k_mat, dist = _camera(camera_matrix, dist_coeffs, (w, h))
     win = _window(window, d, cmap.shape[1], (w, h))
     rng = np.random.default_rng(seed)
+    # apparatus features draw from their own generator, so that the packing,
+    # the types and the noise of a scene do not depend on them
+    arng = np.random.default_rng([int(seed), 1])
     sensor_map, canvas_box = _distortion_map(k_mat, dist, (w, h), d)
-    bed = _Bed(win, d, cmap.shape[1], canvas_box, heavy_look, light_look, rng)
-    scene = _Scene(canvas_box, win, d, heavy_look, light_look, lighting, rng)
+    walls = _Bumps(win, d, canvas_box, apparatus["bump_spacing"], arng) if apparatus["bumps"] else None
+    bed = _Bed(win, d, cmap.shape[1], canvas_box, heavy_look, light_look, rng, walls)
+    scene = _Scene(canvas_box, win, d, heavy_look, light_look, lighting, rng,
+                   apparatus=apparatus, delta_over_H=delta_over_H, arng=arng)
     shift = 0.6 * d if bottom_shift_px is None else float(bottom_shift_px)
-    images, truth = [], []
+    images, truth, bump_truth = [], [], []
     n = np.zeros(cmap.shape, dtype=np.int64)
     n_heavy = np.zeros(cmap.shape, dtype=np.int64)
     for i in range(cmap.shape[0]):
@@ -188,13 +270,18 @@ def render_frames(
         ideal = scene.draw(x, bed, exposure, vignetting)
         images.append(_camera_effects(ideal, sensor_map, blur, noise, jpeg_quality, rng))
         truth.append(bed.truth(x))
+        bump_truth.append(bed.bump_truth())
         n[i], n_heavy[i] = bed.layer_counts(x)
     with np.errstate(invalid="ignore", divide="ignore"):
         c_raw = np.where(n > 0, n_heavy / np.maximum(n, 1), np.nan)
     meta = _experiment(heavy, light, cmap, k_mat, dist, win, d, fps, experiment)
-    result = RenderedFrames(images, truth, n, n_heavy, c_raw, meta)
-    if out_dir is not None:
+    result = RenderedFrames(images, truth, n, n_heavy, c_raw, meta, bumps=bump_truth)
+    if video is not None:
+        result.images, result.paths = _video(result, apparatus, out_dir, force)
+        result.source = result.paths[0] if result.paths else None
+    elif out_dir is not None:
         result.paths = _write(result, Path(out_dir), jpeg_quality, force)
+        result.source = Path(out_dir)
     return result
 
 
@@ -239,6 +326,25 @@ def _window(window: Any, d: float, n_layers: int, size: tuple[int, int]) -> np.n
     if win.shape != (4,) or not (win[0] < win[2] and win[1] < win[3]):
         raise ValueError(f"window must be (x0, y0, x1, y1) with x0 < x1, y0 < y1, got {window!r}")
     return win
+
+
+def _apparatus(bumps, bump_spacing, smear, reflections, dust, video, bitrate) -> dict[str, Any]:
+    """The apparatus options, checked."""
+    spacing, smear, refl = float(bump_spacing), float(smear), float(reflections)
+    if not (np.isfinite(spacing) and spacing >= 1.5):
+        raise ValueError(f"bump_spacing must be >= 1.5 diameters, got {bump_spacing!r}")
+    if not (np.isfinite(smear) and 0 <= smear <= 5):
+        raise ValueError(f"smear_diameters must be in [0, 5], got {smear!r}")
+    if not (np.isfinite(refl) and refl >= 0):
+        raise ValueError(f"wall_reflections must be >= 0, got {reflections!r}")
+    if isinstance(dust, bool) or int(dust) != dust or dust < 0:
+        raise ValueError(f"dust must be a whole number of specks >= 0, got {dust!r}")
+    if video is not None and video not in VIDEO_CODECS:
+        raise ValueError(f"video must be None or one of {VIDEO_CODECS}, got {video!r}")
+    if bitrate is not None and not (np.isfinite(float(bitrate)) and float(bitrate) > 0):
+        raise ValueError(f"video_bitrate must be > 0 bits/s, got {bitrate!r}")
+    return dict(bumps=bool(bumps), bump_spacing=spacing, smear=smear, reflections=refl, dust=int(dust),
+                video=video, bitrate=None if bitrate is None else float(bitrate))
 
 
 # --------------------------------------------------------------------------- lens
@@ -296,10 +402,11 @@ class _Bed:
     rearrange a little, as in a sheared bed.
     """
 
-    def __init__(self, win, d, n_layers, box, heavy_look, light_look, rng):
+    def __init__(self, win, d, n_layers, box, heavy_look, light_look, rng, walls=None):
         self.win, self.d, self.n_layers = win, d, n_layers
         ox, _, cw, _ = box
         self.x_lo, self.length = ox - d, cw + 2 * d
+        self.walls = walls  # the bumps of lid and plate: fixed obstacles, or None
         spread = max(heavy_look["size_spread"], light_look["size_spread"])
         height = win[3] - win[1]
         count = int(round(PACKING_FRACTION * self.length * height / (np.pi * d * d / 4)))
@@ -324,18 +431,24 @@ class _Bed:
         """
         from scipy.spatial import cKDTree
 
-        r = self.diam / 2
-        y_lo, y_hi = self.win[1] + r, self.win[3] - r
+        n = self.y.size
+        # the bumps of the lid and plate are obstacles that never give way (mobility 0)
+        bx, by, bd = (np.zeros(0),) * 3 if self.walls is None else self.walls.centres()
+        r = np.concatenate([self.diam, bd]) / 2
+        y_lo, y_hi = self.win[1] + r[:n], self.win[3] - r[:n]
         box = (self.length, 4 * (self.win[3] - self.win[1]) + 4 * self.d)
         pairs = None
         for sweep in range(sweeps):
+            xs, ys = np.concatenate([self.x0, bx]), np.concatenate([self.y, by])
             if sweep % 10 == 0:  # neighbour list with a skin, rebuilt every 10 sweeps
-                pts = np.column_stack([self.x0 % self.length, self.y - self.win[1] + self.d])
-                pairs = cKDTree(pts, boxsize=box).query_pairs(1.3 * self.diam.max(), output_type="ndarray").T
+                pts = np.column_stack([xs % self.length, ys - self.win[1] + self.d])
+                pairs = cKDTree(pts, boxsize=box).query_pairs(1.3 * max(self.diam.max(), bd.max(initial=0)),
+                                                              output_type="ndarray").T
+                pairs = pairs[:, pairs[0] < n]  # query_pairs gives i < j: i is always a grain
             i, j = pairs
-            dx = self.x0[j] - self.x0[i]
+            dx = xs[j] - xs[i]
             dx -= self.length * np.rint(dx / self.length)
-            dy = self.y[j] - self.y[i]
+            dy = ys[j] - ys[i]
             dist = np.hypot(dx, dy)
             overlap = r[i] + r[j] - dist
             hit = overlap > 0.002 * self.d
@@ -345,11 +458,13 @@ class _Bed:
             dist = np.maximum(dist, 1e-6)
             # push each sphere of the pair half the overlap (and a little more, to converge)
             mob = np.ones_like(self.y) if mobility is None else mobility
+            mob = np.concatenate([mob, np.zeros(bx.size)])
             share_i = mob[i] / (mob[i] + mob[j])
             ux, uy = dx / dist * 1.1 * overlap, dy / dist * 1.1 * overlap
-            mx, my = np.zeros_like(self.x0), np.zeros_like(self.y)
+            mx, my = np.zeros(n + bx.size), np.zeros(n + bx.size)
             np.add.at(mx, i, -ux * share_i), np.add.at(mx, j, ux * (1 - share_i))
             np.add.at(my, i, -uy * share_i), np.add.at(my, j, uy * (1 - share_i))
+            mx, my = mx[:n], my[:n]
             if shake and sweep < sweeps // 2:  # shake early on, so the packing does not lock into a crystal
                 mx += rng.normal(0, 0.01 * self.d, mx.size)
                 my += rng.normal(0, 0.01 * self.d, my.size)
@@ -359,6 +474,8 @@ class _Bed:
     def positions(self, frame: int, shift: float, delta_over_H: float) -> np.ndarray:
         """x [undistorted px] of every sphere at ``frame`` (frames come in order; the bed shears)."""
         if frame > 0:
+            if self.walls is not None:
+                self.walls.advance(shift)  # the plate (and its bumps) moves by the full bottom shift
             height = self.win[3] - self.win[1]
             profile = np.exp(-(self.win[3] - self.y) / (delta_over_H * height))
             before = self.x0 + shift * profile
@@ -407,6 +524,49 @@ class _Bed:
         cols = [x, self.y, self.diam, self.heavy, self.in_window(x)]
         return np.stack([np.asarray(v, dtype=float)[near] for v in cols], axis=1)
 
+    def bump_truth(self) -> np.ndarray:
+        """(k, 4): x, y, diameter, on_plate of the bumps within one diameter of the window."""
+        if self.walls is None:
+            return np.zeros((0, 4))
+        bx, by, bd = self.walls.centres()
+        x = self.x_lo + bx
+        x0, _, x1, _ = self.win
+        near = (x >= x0 - self.d) & (x < x1 + self.d)
+        return np.column_stack([x, by, bd, self.walls.on_plate])[near]
+
+
+class _Bumps:
+    """The hemispheres on the lid and the plate, one diameter across, along the wall.
+
+    In the bed's periodic coordinate (0 .. length, like ``_Bed.x0``): random
+    centre spacings of 0.7 to 1.3 x ``spacing`` diameters. The plate's bumps
+    advance with the plate; the lid's are fixed.
+    """
+
+    def __init__(self, win, d, box, spacing, rng):
+        ox, _, cw, _ = box
+        self.length = cw + 2 * d
+        rows = [self._row(d, spacing, rng) for _ in range(2)]
+        self.x_lid, self.x_plate = rows
+        self.y = np.concatenate([np.full(rows[0].size, win[1]), np.full(rows[1].size, win[3])])
+        self.diam = np.full(self.y.size, float(d))
+        self.on_plate = np.concatenate([np.zeros(rows[0].size), np.ones(rows[1].size)])
+        self.offset = 0.0
+
+    def _row(self, d, spacing, rng) -> np.ndarray:
+        gaps = rng.uniform(0.7, 1.3, int(self.length / (0.7 * spacing * d)) + 2) * spacing * d
+        x = np.concatenate([[0.0], np.cumsum(gaps)])
+        x = x[x <= self.length - 0.7 * spacing * d]  # the gap across the wrap-around is >= 0.7 x spacing too
+        return (x + rng.uniform(0, self.length)) % self.length
+
+    def advance(self, shift: float) -> None:
+        self.offset += shift
+
+    def centres(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """x (periodic coordinate), y [undistorted px], diameter [px] of every bump."""
+        x = np.concatenate([self.x_lid, (self.x_plate + self.offset) % self.length])
+        return x, self.y, self.diam
+
 
 # --------------------------------------------------------------------------- drawing
 
@@ -414,15 +574,20 @@ class _Bed:
 class _Scene:
     """Draws the ideal (undistorted, noise-free) image of the wall, float BGR in [0, 1]."""
 
-    def __init__(self, box, win, d, heavy_look, light_look, lighting, rng):
+    def __init__(self, box, win, d, heavy_look, light_look, lighting, rng, apparatus=None,
+                 delta_over_H=0.18, arng=None):
         if lighting not in LIGHTINGS:
             raise ValueError(f"lighting must be one of {sorted(LIGHTINGS)}, got {lighting!r}")
         self.ox, self.oy, self.cw, self.ch = box
         self.win, self.d = win, d
         self.looks = (light_look, heavy_look)
         self.lights = LIGHTINGS[lighting]
+        self.app = apparatus or dict(bumps=False, smear=0.0, reflections=0.0, dust=0)
+        self.delta_over_H = float(delta_over_H)
+        arng = np.random.default_rng(1) if arng is None else arng
         self.behind = self._behind(heavy_look, light_look, rng)
-        self.base = self._walls()
+        self.base = self._bumpy_walls(arng) if self.app["bumps"] else self._walls()
+        self.overlay = self._wall_overlay(arng) if self.app["reflections"] > 0 or self.app["dust"] > 0 else None
 
     def _behind(self, heavy_look, light_look, rng) -> np.ndarray:
         """What is seen through gaps and glass: darker, blurred grains further in."""
@@ -446,32 +611,166 @@ class _Scene:
         img[edge] = 0.45
         return img
 
+    def _bumpy_walls(self, arng) -> np.ndarray:
+        """The bumpy lid and plate seen edge-on: printed PLA (fine horizontal
+        layer lines), a bright chamfer along each edge, a shadow under the lid."""
+        img = self.behind * 0.3
+        yy = np.arange(self.ch) + self.oy
+        y0, y1 = self.win[1], self.win[3]
+        layers = (1 + 0.05 * cv2.GaussianBlur(arng.normal(0, 1, (self.ch, 1)), (1, 0), 0.6)[:, 0]).astype(np.float32)
+        base = np.array(WALL_LOOK["colour"], np.float32)
+        lid, plate = yy < y0, yy >= y1
+        fade_lid = np.clip(1 - (y0 - yy[lid]) / (6 * self.d), 0.7, 1)  # lit from the side: brightest near the bed
+        img[lid] = base * (fade_lid * layers[lid])[:, None, None]
+        img[plate] = base * 0.8 * layers[plate][:, None, None]
+        for y_edge, value, width in ((y0, 0.55, 1.2), (y1, 0.50, 1.5)):
+            line = np.exp(-((yy - y_edge) / width) ** 2).astype(np.float32)
+            img += (value - img) * line[:, None, None]
+        below_lid = (yy >= y0) & (yy < y0 + 0.4 * self.d)
+        img[below_lid] *= (0.6 + 0.4 * (yy[below_lid] - y0) / (0.4 * self.d))[:, None, None].astype(np.float32)
+        return img
+
+    def _wall_overlay(self, arng) -> tuple[np.ndarray, np.ndarray]:
+        """Static marks on the PMMA wall: (mul (H, W), add (H, W, 3)) over the lit image.
+
+        Lamp reflections: each lamp's mirror image in the curved wall is a
+        soft vertical band on the lamp's side (a fainter, narrower one beside
+        it from the wall's inner surface). Dust: small dark (blocking) or
+        bright (scattering) specks; scratches: thin bright lines.
+        """
+        mul = np.ones((self.ch, self.cw), np.float32)
+        add = np.zeros((self.ch, self.cw), np.float32)
+        xx = np.arange(self.cw) + self.ox
+        yy = np.arange(self.ch) + self.oy
+        x0, y0, x1, y1 = self.win
+        mid, half = (x0 + x1) / 2, (x1 - x0) / 2
+        strength = self.app["reflections"]
+        if strength > 0:
+            for lx, _, _, power in self.lights:
+                side = np.sign(lx) if abs(lx) > 0.1 else arng.choice([-1.0, 1.0])
+                reach = arng.uniform(0.25, 0.9) if abs(lx) > 0.1 else arng.uniform(0.0, 0.3)
+                xc = mid + side * reach * half
+                for offset, width, peak, edge in ((0.0, arng.uniform(0.35, 1.0) * self.d, 0.30, 3),
+                                                  (side * arng.uniform(0.4, 1.2) * self.d,
+                                                   max(3.0, arng.uniform(0.1, 0.25) * self.d), 0.07, 2)):
+                    u = np.abs(xx - xc - offset) / (width / 2)
+                    across = np.exp(-u ** edge)
+                    wobble = cv2.GaussianBlur(arng.normal(0, 1, (self.ch, 1)), (1, 0), self.d)[:, 0]
+                    along = 1 - 0.25 * ((yy - (y0 + y1) / 2) / (y1 - y0)) ** 2 + 3.0 * wobble
+                    add += (strength * peak * power / 0.65 * np.outer(np.clip(along, 0.3, 1.3), across)).astype(np.float32)
+        n_dust = self.app["dust"]
+        if n_dust > 0:
+            scale = max(1.0, self.d / 30)
+            for _ in range(n_dust):
+                px = arng.uniform(x0 - self.d, x1 + self.d) - self.ox
+                py = arng.uniform(y0 - self.d, y1 + self.d) - self.oy
+                rad = arng.uniform(0.4, 1.6) * scale
+                lo_x, hi_x = max(int(px - 3 * rad), 0), min(int(px + 3 * rad) + 2, self.cw)
+                lo_y, hi_y = max(int(py - 3 * rad), 0), min(int(py + 3 * rad) + 2, self.ch)
+                gx, gy = np.meshgrid(np.arange(lo_x, hi_x) - px, np.arange(lo_y, hi_y) - py)
+                spot = np.exp(-(gx * gx + gy * gy) / (rad * rad)).astype(np.float32)
+                if arng.uniform() < 0.7:
+                    mul[lo_y:hi_y, lo_x:hi_x] *= 1 - arng.uniform(0.35, 0.85) * spot
+                else:
+                    add[lo_y:hi_y, lo_x:hi_x] += arng.uniform(0.15, 0.45) * spot
+            lines = np.zeros((self.ch, self.cw), np.uint8)
+            for _ in range(max(1, n_dust // 8)):
+                px = arng.uniform(x0 - self.d, x1 + self.d) - self.ox
+                py = arng.uniform(y0, y1) - self.oy
+                length, angle = arng.uniform(0.5, 4.0) * self.d, arng.uniform(0, np.pi)
+                ends = np.array([[px, py], [px + length * np.cos(angle), py + length * np.sin(angle)]])
+                pts = np.rint(ends * 16).astype(np.int32)
+                level = int(arng.uniform(0.3, 1.0) * 255)
+                cv2.line(lines, tuple(pts[0]), tuple(pts[1]), level, 1, cv2.LINE_AA, shift=4)
+            add += 0.25 * lines.astype(np.float32) / 255
+        tint = np.array([1.0, 0.98, 0.95], np.float32)  # white LEDs, a little cool
+        return mul, add[..., None] * tint
+
     def draw(self, x: np.ndarray, bed: _Bed, exposure: float, vignetting: float) -> np.ndarray:
         img = self.base.copy()
         cx, cy = x - self.ox, bed.y - self.oy
         r = bed.diam / 2
+        smear = self._smear_px(bed.y) if self.app["smear"] > 0 else None
+        # Smeared spheres are the time average of sharp ones that never overlap: their
+        # averaged colours and coverages add up (painting them over each other would
+        # darken where neighbouring streaks meet).
+        acc = None if smear is None else (np.zeros_like(img), np.zeros(img.shape[:2], np.float32))
         keep = (cx > -self.d) & (cx < self.cw + self.d)
         for idx in np.array_split(np.flatnonzero(keep), max(1, keep.sum() // 400)):
-            self._draw_batch(img, cx[idx], cy[idx], r[idx], bed.heavy[idx], bed.shade[idx])
-        return self._illumination(img, exposure, vignetting)
+            self._draw_batch(img, cx[idx], cy[idx], r[idx], bed.heavy[idx], bed.shade[idx],
+                             None if smear is None else smear[idx], acc)
+        if bed.walls is not None:
+            self._draw_bumps(img, bed, acc)
+        if acc is not None:
+            light, cover = acc
+            img = img * (1 - np.clip(cover, 0, 1))[..., None] + light / np.maximum(cover, 1)[..., None]
+        img = self._illumination(img, exposure, vignetting)
+        if self.overlay is not None:
+            mul, add = self.overlay
+            img = np.clip(img * mul[..., None] + add, 0, 1.2).astype(np.float32)
+        return img
 
-    def _draw_batch(self, img, cx, cy, r, heavy, shade) -> None:
+    def _smear_px(self, y: np.ndarray) -> np.ndarray:
+        """Motion-blur length [px] at heights y: the plate's smear, decaying like the shift."""
+        height = self.win[3] - self.win[1]
+        return self.app["smear"] * self.d * np.exp(-(self.win[3] - y) / (self.delta_over_H * height))
+
+    def _draw_batch(self, img, cx, cy, r, heavy, shade, smear=None, acc=None) -> None:
+        colour, alpha, bx, by = self._sprites(cx, cy, r, heavy, self.looks, shade, smear)
+        for k in np.random.default_rng(len(cx)).permutation(len(cx)):
+            if acc is None:
+                _paste(img, colour[k], alpha[k], bx[k], by[k])
+            else:
+                _accumulate(acc, colour[k], alpha[k], bx[k], by[k])
+
+    def _sprites(self, cx, cy, r, kind, looks, shade, smear=None, visible_side=None):
+        """Sprites (colour (m, s, w, 3), alpha (m, s, w), top-left x, y) of spheres at (cx, cy).
+
+        ``kind`` indexes ``looks``; ``smear`` [px] blurs each along x
+        (centred); ``visible_side`` (+1 / -1 per sphere) keeps only the half
+        above (-1: below) the centre, for the hemispheres on the walls.
+        """
         s = int(np.ceil(2 * r.max())) + 4
-        bx, by = np.floor(cx - s / 2).astype(int), np.floor(cy - s / 2).astype(int)
+        pad = 0 if smear is None else 2 * (int(np.ceil(smear.max() / 2)) + 1)
+        bx, by = np.floor(cx - (s + pad) / 2).astype(int), np.floor(cy - s / 2).astype(int)
         g = np.arange(s, dtype=np.float32)
-        dx = (bx[:, None, None] + g[None, None, :]) - cx[:, None, None]
+        gx = g if pad == 0 else np.arange(s + pad, dtype=np.float32)
+        dx = (bx[:, None, None] + gx[None, None, :]) - cx[:, None, None]
         dy = (by[:, None, None] + g[None, :, None]) - cy[:, None, None]
         dx, dy = np.broadcast_arrays(dx, dy)
         dist = np.sqrt(dx * dx + dy * dy)
         alpha = np.clip(r[:, None, None] - dist + 0.5, 0, 1).astype(np.float32)
+        if visible_side is not None:
+            alpha *= np.clip(0.5 - visible_side[:, None, None] * dy, 0, 1).astype(np.float32)
         colour = np.empty((*dx.shape, 3), np.float32)
-        for kind in (0, 1):
-            sel = heavy == kind
+        for k, look in enumerate(looks):
+            sel = kind == k
             if sel.any():
-                colour[sel] = self._shade(dx[sel], dy[sel], r[sel], cx[sel], cy[sel], self.looks[kind])
+                colour[sel] = self._shade(dx[sel], dy[sel], r[sel], cx[sel], cy[sel], look)
         colour *= shade[:, None, None, None].astype(np.float32)
-        for k in np.random.default_rng(len(cx)).permutation(len(cx)):
-            _paste(img, colour[k], alpha[k], bx[k], by[k])
+        if smear is not None:
+            colour, alpha = _smear(colour, alpha, smear)
+        return colour, alpha, bx, by
+
+    def _draw_bumps(self, img, bed: _Bed, acc=None) -> None:
+        """The hemispheres of the lid and plate: domes of the wall's PLA, the plate's smeared with it."""
+        bx, by, bd = bed.walls.centres()
+        cx, cy = bed.x_lo + bx - self.ox, by - self.oy
+        keep = (cx > -self.d) & (cx < self.cw + self.d)
+        if not keep.any():
+            return
+        plate = bed.walls.on_plate[keep] > 0
+        smear = None
+        if self.app["smear"] > 0:
+            smear = np.where(plate, self.app["smear"] * self.d, 0.0)
+        shade = np.where(plate, 0.9, 1.0)  # the plate's bumps sit lower, further from the lamps
+        colour, alpha, sx, sy = self._sprites(cx[keep], cy[keep], bd[keep] / 2, np.zeros(plate.size, int),
+                                              (WALL_LOOK,), shade, smear, np.where(plate, 1.0, -1.0))
+        for k in range(plate.size):
+            if acc is None:
+                _paste(img, colour[k], alpha[k], sx[k], sy[k])
+            else:
+                _accumulate(acc, colour[k], alpha[k], sx[k], sy[k])
 
     def _shade(self, dx, dy, r, cx, cy, look) -> np.ndarray:
         """Per-pixel colour of spheres of one material, (m, s, s, 3)."""
@@ -488,7 +787,9 @@ class _Scene:
             spec += power * ndoth ** look["shininess"]
         base = np.array(look["colour"], np.float32)
         rim = 1 - nz
-        if look["metal"]:
+        if look.get("mirror"):
+            body = base * self._mirror(nx, ny, nz)[..., None]
+        elif look["metal"]:
             env = self._environment(nx, ny, nz)
             body = base * (0.25 + 0.75 * env[..., None]) * (1 - 0.55 * rim[..., None] ** 2)
         elif look["glass"]:
@@ -508,13 +809,29 @@ class _Scene:
             lamps += power * 0.9 * np.exp(-(1 - rdotl) / 0.05)
         return 0.15 + sky + lamps
 
+    def _mirror(self, nx, ny, nz) -> np.ndarray:
+        """What a polished sphere mirrors along the reflected ray R = 2 (n.v) n - v (v = to the camera).
+
+        The dark lab and the camera behind the view, the bed below, a lit
+        ceiling above, and each lamp as a panel of 0.4 rad angular radius
+        with a sharp edge.
+        """
+        rx, ry, rz = 2 * nz * nx, 2 * nz * ny, 2 * nz * nz - 1
+        env = 0.06 + 0.06 * np.clip(ry, 0, 1)  # dark lab; the bed below a little lighter
+        env = env + 0.5 * np.clip((-ry - 0.05) / 0.75, 0, 1) ** 1.2  # the lit room above
+        for lx, ly, lz, power in self.lights:
+            ln = np.array([lx, ly, lz]) / np.linalg.norm([lx, ly, lz])
+            cos = rx * ln[0] + ry * ln[1] + rz * ln[2]
+            env = env + 2.2 * power * np.clip((cos - np.cos(0.4)) / 0.015, 0, 1)
+        return env
+
     def _glass(self, dx, dy, cx, cy, rim, tint) -> np.ndarray:
         """Transparent sphere: the grains behind, inverted and tinted; dark outline."""
         mx = (cx[:, None, None] - 0.55 * dx).astype(np.float32)
         my = (cy[:, None, None] - 0.55 * dy).astype(np.float32)
-        m, s = dx.shape[0], dx.shape[1]
-        seen = cv2.remap(self.behind, mx.reshape(m * s, s), my.reshape(m * s, s),
-                         cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT).reshape(m, s, s, 3)
+        m, sh, sw = dx.shape
+        seen = cv2.remap(self.behind, mx.reshape(m * sh, sw), my.reshape(m * sh, sw),
+                         cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT).reshape(m, sh, sw, 3)
         ring = np.clip((rim - 0.45) / 0.35, 0, 1)
         body = (0.22 + 1.8 * seen) * tint * (1 - 0.85 * ring[..., None])
         return body + 0.25 * np.exp(-((rim - 0.93) / 0.05) ** 2)[..., None]
@@ -531,14 +848,57 @@ class _Scene:
 def _paste(img: np.ndarray, colour: np.ndarray, alpha: np.ndarray, x: int, y: int) -> None:
     """Alpha-blend one sprite at (x, y), clipped to the canvas."""
     h, w = img.shape[:2]
-    s = alpha.shape[0]
-    x_a, y_a, x_b, y_b = max(x, 0), max(y, 0), min(x + s, w), min(y + s, h)
+    sh, sw = alpha.shape
+    x_a, y_a, x_b, y_b = max(x, 0), max(y, 0), min(x + sw, w), min(y + sh, h)
     if x_a >= x_b or y_a >= y_b:
         return
     a = alpha[y_a - y:y_b - y, x_a - x:x_b - x, None]
     region = img[y_a:y_b, x_a:x_b]
     region *= 1 - a
     region += a * colour[y_a - y:y_b - y, x_a - x:x_b - x]
+
+
+def _accumulate(acc: tuple[np.ndarray, np.ndarray], colour: np.ndarray, alpha: np.ndarray, x: int, y: int) -> None:
+    """Add one sprite's light (colour x coverage) and coverage to the accumulators, clipped to the canvas."""
+    light, cover = acc
+    h, w = cover.shape
+    sh, sw = alpha.shape
+    x_a, y_a, x_b, y_b = max(x, 0), max(y, 0), min(x + sw, w), min(y + sh, h)
+    if x_a >= x_b or y_a >= y_b:
+        return
+    a = alpha[y_a - y:y_b - y, x_a - x:x_b - x]
+    cover[y_a:y_b, x_a:x_b] += a
+    light[y_a:y_b, x_a:x_b] += a[..., None] * colour[y_a - y:y_b - y, x_a - x:x_b - x]
+
+
+def _smear(colour: np.ndarray, alpha: np.ndarray, length: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Motion blur: each sprite averaged over a horizontal move of ``length`` [px] centred on it.
+
+    colour (m, s, w, 3), alpha (m, s, w), length (m,). The premultiplied
+    colour and the coverage are box-filtered along x (exact for a sprite
+    constant over each pixel: differences of the running sum, read at
+    fractional positions), so a sphere becomes a semi-transparent streak
+    whose centre is the sphere's mid-exposure position.
+    """
+    m, s, w = alpha.shape
+    stack = np.concatenate([colour * alpha[..., None], alpha[..., None]], axis=-1).astype(np.float64)
+    run = np.concatenate([np.zeros((m, s, 1, 4)), np.cumsum(stack, axis=2)], axis=2)  # knot k at x = k - 0.5
+    length = np.maximum(np.asarray(length, dtype=float), 1e-3)
+    x = np.arange(w, dtype=float)
+
+    def at(u: np.ndarray) -> np.ndarray:  # running sum at positions u (m, w), linear between knots
+        q = np.clip(u + 0.5, 0, w)
+        k = np.minimum(np.floor(q).astype(int), w - 1)
+        f = (q - k)[:, None, :, None]
+        lo = np.take_along_axis(run, np.broadcast_to(k[:, None, :, None], (m, s, w, 4)), axis=2)
+        hi = np.take_along_axis(run, np.broadcast_to(k[:, None, :, None] + 1, (m, s, w, 4)), axis=2)
+        return lo * (1 - f) + hi * f
+
+    half = length[:, None] / 2
+    out = (at(x[None] + half) - at(x[None] - half)) / length[:, None, None, None]
+    a = np.clip(out[..., 3], 0, 1)
+    col = out[..., :3] / np.maximum(out[..., 3:], 1e-6)
+    return col.astype(np.float32), a.astype(np.float32)
 
 
 # --------------------------------------------------------------------------- output
@@ -563,12 +923,13 @@ def _experiment(heavy, light, cmap, k_mat, dist, win, d, fps, extra) -> dict[str
 
 
 def _densities(heavy: str, light: str) -> tuple[float, float]:
-    """Solid densities [kg/m^3] of the two materials, from the model's table."""
+    """Solid densities [kg/m^3] of the two materials (looks name theirs), from the model's table."""
     try:
         from granseg.model import MATERIALS
 
         table = {k.lower(): float(v) for k, v in MATERIALS.items()}
-        return table[heavy.lower()], table[light.lower()]
+        names = [MATERIAL_LOOKS.get(m.lower(), {}).get("material", m).lower() for m in (heavy, light)]
+        return table[names[0]], table[names[1]]
     except (ImportError, KeyError, AttributeError):
         # The model (Rust extension) is not available: nominal placeholders,
         # heavier first. Pass experiment={"rho_h": ..., "rho_l": ...} to set them.
@@ -590,6 +951,76 @@ def _write(result: RenderedFrames, out: Path, jpeg_quality: int | None, force: b
         paths.append(p)
     paths.append(save_json(out / "experiment.json", result.experiment, force=force))
     return paths
+
+
+def _video(result: RenderedFrames, app: dict[str, Any], out_dir, force: bool) -> tuple[list[np.ndarray], list[Path]]:
+    """Encode the frames as a lossy video; return the decoded frames and the files written."""
+    import tempfile
+
+    if out_dir is None:
+        with tempfile.TemporaryDirectory() as tmp:
+            path = Path(tmp) / "video.mp4"
+            _encode(result.images, path, app["video"], app["bitrate"])
+            return _decode(path, len(result.images)), []
+    from granseg._io import atomic_path, save_json
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    path = out / "video.mp4"
+    with atomic_path(path, force=force) as tmp:  # tmp ends in .mp4: the encoders pick the container by it
+        _encode(result.images, tmp, app["video"], app["bitrate"])
+    images = _decode(path, len(result.images))
+    return images, [path, save_json(out / "experiment.json", result.experiment, force=force)]
+
+
+def _encode(images: list[np.ndarray], path: Path, codec: str, bitrate: float | None) -> None:
+    h, w = images[0].shape[:2]
+    if codec == "mp4v" and bitrate is None:
+        writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), VIDEO_PLAYBACK_FPS, (w, h))
+        if not writer.isOpened():
+            raise OSError(f"{path}: OpenCV cannot write MPEG-4 (mp4v) video here")
+        for img in images:
+            writer.write(img)
+        writer.release()
+        return
+    try:
+        import av
+    except ImportError:
+        what = "H.264 video" if codec == "h264" else "an MPEG-4 video at a chosen bitrate"
+        raise ImportError(f"{what} needs PyAV (pip install av); video='mp4v' without "
+                          "video_bitrate needs only OpenCV") from None
+    if bitrate is None:
+        bitrate = VIDEO_BITS_PER_PIXEL * w * h * VIDEO_PLAYBACK_FPS
+    with av.open(str(path), "w") as container:
+        stream = container.add_stream("libx264" if codec == "h264" else "mpeg4", rate=int(VIDEO_PLAYBACK_FPS))
+        stream.width, stream.height, stream.pix_fmt = w + (w % 2), h + (h % 2), "yuv420p"
+        stream.bit_rate = int(bitrate)
+        stream.codec_context.gop_size = 15  # a key frame every half second, as a GoPro
+        if codec == "h264":
+            stream.options = {"preset": "medium", "threads": "1"}
+        for img in images:
+            if w % 2 or h % 2:  # 4:2:0 needs even sizes: repeat the last column / row
+                img = cv2.copyMakeBorder(img, 0, h % 2, 0, w % 2, cv2.BORDER_REPLICATE)
+            for packet in stream.encode(av.VideoFrame.from_ndarray(img, format="bgr24")):
+                container.mux(packet)
+        for packet in stream.encode():
+            container.mux(packet)
+
+
+def _decode(path: Path, n: int) -> list[np.ndarray]:
+    cap = cv2.VideoCapture(str(path))
+    images = []
+    try:
+        while len(images) < n:
+            ok, img = cap.read()
+            if not ok:
+                break
+            images.append(img)
+    finally:
+        cap.release()
+    if len(images) != n:
+        raise OSError(f"{path}: wrote {n} frames but OpenCV reads back {len(images)}")
+    return images
 
 
 # --------------------------------------------------------------------------- checkerboard
