@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
+from granseg.errors import QualityWarning
 from granseg.measure import analyze
 from granseg.synth import SCENES, mixing_map, render_frames
 
@@ -87,6 +88,12 @@ def test_layer_counts_within_3_percent(tmp_path):
 def test_colour_ranges_override_learning(tmp_path, ranges, inverted):
     r = render_frames(mixing_map(2), seed=8, out_dir=tmp_path, heavy="ceramic", light="pp",
                       particle_diameter_px=20, image_size=(400, 480), experiment=ranges)
-    a = analyze(tmp_path, smooth=1, save=False, progress=False)
+    if inverted:  # the ranges are obeyed, and the quality checks see the first frame upside down
+        with pytest.warns(QualityWarning, match="first_frame_order"):
+            a = analyze(tmp_path, smooth=1, save=False, progress=False)
+        assert [c.name for c in a.quality.failed] == ["first_frame_order"]
+    else:
+        a = analyze(tmp_path, smooth=1, save=False, progress=False)
+        assert a.quality.ok
     expected = 1 - r.c_raw if inverted else r.c_raw
     assert np.sqrt(np.nanmean((a.c_raw - expected) ** 2)) < 0.05

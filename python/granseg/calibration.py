@@ -49,7 +49,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from granseg.fit import weighted_covariance
-from granseg.maps import Campaign, Map, load_campaign
+from granseg.maps import Campaign, Map, check_accepted, load_campaign
 
 __all__ = ["DEFAULT_GRID", "Calibration", "CalibrationWarning", "ExperimentOptimum", "calibrate", "check_grid"]
 
@@ -385,6 +385,7 @@ def calibrate(
     max_nfev: int = 40,
     client: Any = None,
     progress: bool = True,
+    accept_flagged: bool = False,
 ) -> Calibration:
     """Calibrate model parameters against every map of a campaign.
 
@@ -404,11 +405,14 @@ def calibrate(
     max_nfev : cap on residual evaluations per refinement (each one sweep).
     client : a ``dask.distributed.Client``; passed to ``granseg.sweep``.
     progress : print a counted line per sweep to stderr.
+    accept_flagged : use maps that failed their frame-analysis quality checks
+        (refused by default with :class:`granseg.errors.FlaggedMapError`).
     """
     import granseg
 
     t_start = time.perf_counter()
     maps = _as_maps(campaign)
+    check_accepted(maps, accept_flagged)
     grid = check_grid(grid, list(granseg.defaults()))
     keys = list(grid)
     bnds = _bounds_arrays(keys, bounds, grid)

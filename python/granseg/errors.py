@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-__all__ = ["GransegError", "SolverError", "FitError"]
+__all__ = ["GransegError", "SolverError", "FitError", "FlaggedMapError", "QualityWarning"]
 
 
 class GransegError(Exception):
@@ -15,3 +15,11 @@ class SolverError(GransegError, RuntimeError):
 
 class FitError(GransegError):
     """A fit or calibration could not produce a result at all."""
+
+
+class FlaggedMapError(GransegError, ValueError):
+    """A map failed its frame-analysis quality checks and was not accepted (names map and checks)."""
+
+
+class QualityWarning(UserWarning):
+    """A map's quality record has a failed check (the map may be wrong)."""

@@ -23,7 +23,9 @@ the calibration and the plots all use it.
 
 from __future__ import annotations
 
+import json
 import os
+import warnings
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -40,11 +42,12 @@ __all__ = [
     "save_map",
     "load_map",
     "load_campaign",
+    "check_accepted",
     "moving_average",
 ]
 
 REQUIRED = ("c", "t", "z", "name", "heavy", "light", "rho_h", "rho_l", "c0", "M_g", "M_w")
-OPTIONAL = ("n", "n_heavy", "c_raw", "fps", "smoothing_frames")
+OPTIONAL = ("n", "n_heavy", "c_raw", "fps", "smoothing_frames", "quality")
 
 
 class MapFormatError(ValueError):
@@ -147,7 +150,8 @@ class Map(Conditions):
     ``n_heavy`` (particle counts), ``c_raw`` (share before smoothing).
     Metadata: ``name``, ``heavy``, ``light``, ``rho_h``, ``rho_l`` [kg/m^3],
     ``c0`` [-], ``M_g``, ``M_w`` [kg], ``fps`` [1/s] or None,
-    ``smoothing_frames`` (width of the moving average already in ``c``).
+    ``smoothing_frames`` (width of the moving average already in ``c``),
+    ``quality`` (the frame analysis' checks, a JSON object as text, or None).
     """
 
     c: np.ndarray
@@ -158,6 +162,7 @@ class Map(Conditions):
     c_raw: np.ndarray | None = None
     fps: float | None = None
     smoothing_frames: int = 1
+    quality: str | None = None
     path: Path | None = None
     extra: Mapping[str, np.ndarray] = field(default_factory=dict)
 
@@ -176,6 +181,16 @@ class Map(Conditions):
     def n_times(self) -> int:
         """Number of frames (rows of ``c``)."""
         return int(self.c.shape[0])
+
+    @property
+    def failed_checks(self) -> list[str]:
+        """Names of the quality checks this map failed (empty if it passed or carries none)."""
+        if self.quality is None:
+            return []
+        record = json.loads(self.quality)
+        if record.get("ok", True):
+            return []
+        return [k for k, v in record.get("checks", {}).items() if not v.get("passed", True)] or ["ok"]
 
     @property
     def bottom(self) -> np.ndarray:
@@ -362,7 +377,21 @@ def _validate_optional(source: str, raw: Mapping[str, Any], shape: tuple[int, ..
         out["fps"] = _scalar(source, "fps", raw["fps"], 0.0, np.inf, True)
     if raw.get("smoothing_frames") is not None:
         out["smoothing_frames"] = _smoothing(source, raw["smoothing_frames"])
+    if raw.get("quality") is not None:
+        out["quality"] = _quality(source, raw["quality"])
     return out
+
+
+def _quality(source: str, value: Any) -> str:
+    """The quality record: a JSON object (as text) with a boolean ``ok``."""
+    text = _text(source, "quality", value)
+    try:
+        record = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise _fail(source, "quality", f"not valid JSON ({exc})") from None
+    if not isinstance(record, dict) or not isinstance(record.get("ok"), bool):
+        raise _fail(source, "quality", 'expected a JSON object with a boolean "ok"')
+    return text
 
 
 def _smoothing(source: str, value: Any) -> int:
@@ -428,7 +457,28 @@ def load_map(path: str | os.PathLike) -> Map:
         raise MapFormatError(f"{p}: not a readable .npz archive ({exc})") from None
     clean = _validate(str(p), raw)
     extra = {k: v for k, v in raw.items() if k not in REQUIRED and k not in OPTIONAL}
-    return Map(**clean, path=p, extra=extra)
+    m = Map(**clean, path=p, extra=extra)
+    if m.failed_checks:
+        from granseg.errors import QualityWarning
+
+        warnings.warn(f"{p}: this map failed its frame-analysis quality checks: {', '.join(m.failed_checks)}",
+                      QualityWarning, stacklevel=2)
+    return m
+
+
+def check_accepted(maps: Iterator[Map] | list[Map], accept_flagged: bool) -> None:
+    """Refuse maps that failed their quality checks unless ``accept_flagged``.
+
+    Raises FlaggedMapError naming every flagged map and its failed checks.
+    """
+    flagged = [m for m in maps if m.failed_checks]
+    if flagged and not accept_flagged:
+        from granseg.errors import FlaggedMapError
+
+        names = "; ".join(f"{m.path or m.name}: {', '.join(m.failed_checks)}" for m in flagged)
+        raise FlaggedMapError(f"{len(flagged)} map(s) failed their frame-analysis quality checks ({names}); "
+                              "look at the analysis preview, fix the cause, or accept them explicitly "
+                              "(accept_flagged=True, CLI: --accept-flagged)")
 
 
 def load_campaign(directory: str | os.PathLike) -> Campaign:

@@ -13,6 +13,7 @@ import importlib
 import logging
 import pkgutil
 import sys
+import warnings
 
 __all__ = ["main", "build_parser"]
 
@@ -43,6 +44,8 @@ def main(argv: list[str] | None = None) -> int:
     )
     # matplotlib's PDF backend logs every font subset at INFO through fontTools
     logging.getLogger("fontTools").setLevel(logging.WARNING)
+    # warnings as one line a user reads, not Python's "file:line: Class: ..." with a source line
+    warnings.formatwarning = lambda message, category, *rest, **kw: f"granseg: warning: {message}\n"
     try:
         return int(args.func(args) or 0)
     except KeyboardInterrupt:

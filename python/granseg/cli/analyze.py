@@ -20,6 +20,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--preview", metavar="DIR", help="write annotated preview images to DIR")
     p.add_argument("--preview-count", metavar="K", type=int, default=6,
                    help="number of preview frames spread over the run (default 6)")
+    p.add_argument("--detections", metavar="FILE.csv",
+                   help="also write every sphere counted: frame, x, y (undistorted px), r (px), class, "
+                        "p_heavy, layer")
+    p.add_argument("--strict", action="store_true",
+                   help="exit with status 3 when the map fails a quality check (the map is still written)")
     p.add_argument("--workers", metavar="N", type=int, help="parallel workers (default: all cores)")
     p.add_argument("--force", action="store_true", help="overwrite existing output files")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -27,20 +32,38 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    """Run the analysis and print a short summary."""
+    """Run the analysis, print a short summary and the quality report."""
+    import sys
+
+    from granseg.errors import QualityWarning
     from granseg.measure import BadFrameWarning, analyze
 
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", BadFrameWarning)
+        warnings.simplefilter("ignore", QualityWarning)  # the report below says it, in full
         result = analyze(args.path, out=args.out, smooth=args.smooth, preview=args.preview,
                          preview_count=args.preview_count, force=args.force,
-                         workers=args.workers, progress=not args.no_progress)
+                         workers=args.workers, progress=not args.no_progress, detections=args.detections)
     for w in caught:
         print(f"warning: {w.message}")
     good = len(result.frame_names) - len(result.bad_frames)
     print(f"{len(result.frame_names)} frames, {good} analysed, {len(result.bad_frames)} bad frames")
     print(f"spheres per frame in the window: {result.n.sum(axis=1)[result.n.sum(axis=1) > 0].mean():.1f}")
+    wall = result.quality.figures.get("wall_detections_per_frame", 0.0)
+    if wall:
+        print(f"left out as hemispheres of the lid or plate: {wall:.1f} per frame")
     print(f"map written to {result.out} (smoothing_frames = {result.smoothing_frames})")
+    if result.detections is not None:
+        print(f"detections written to {result.detections}")
     if result.previews:
         print(f"{len(result.previews)} preview images in {result.previews[0].parent}")
+    print(result.quality.report())
+    if not result.quality.ok:
+        names = ", ".join(c.name for c in result.quality.failed)
+        print(f"\n*** WARNING: this map failed {len(result.quality.failed)} quality check(s): {names}.\n"
+              f"*** It may be wrong. Look at the preview"
+              f"{' in ' + str(result.previews[0].parent) if result.previews else ''} before using it; "
+              f"calibrate and diagnose refuse it unless given --accept-flagged.", file=sys.stderr)
+        if args.strict:
+            return 3
     return 0

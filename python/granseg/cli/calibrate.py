@@ -57,13 +57,16 @@ def add_calibration_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--max-nfev", type=int, default=40, help="cap on refinement evaluations")
     p.add_argument("--dask", metavar="ADDRESS", default=None,
                    help="dask scheduler address ('local' starts a threaded LocalCluster)")
+    p.add_argument("--accept-flagged", action="store_true",
+                   help="use maps that failed their frame-analysis quality checks (refused by default)")
 
 
 def calibration_kwargs(args: argparse.Namespace) -> dict[str, Any]:
     """Keyword arguments of granseg.calibrate from parsed options."""
     return dict(grid=parse_grid(args.grid), bounds=parse_bounds(args.bounds),
                 refine=not args.no_refine, per_experiment=args.per_experiment,
-                n_cells=args.n_cells, rtol=args.rtol, max_nfev=args.max_nfev)
+                n_cells=args.n_cells, rtol=args.rtol, max_nfev=args.max_nfev,
+                accept_flagged=args.accept_flagged)
 
 
 @contextlib.contextmanager

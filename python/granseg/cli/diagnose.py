@@ -26,6 +26,8 @@ def register(subparsers: Any) -> None:
                    help="only consider these causes (default: all)")
     p.add_argument("--n-cells", type=int, default=72, help="model cells over the bed height (default 72)")
     p.add_argument("--force", action="store_true", help="replace existing output files")
+    p.add_argument("--accept-flagged", action="store_true",
+                   help="use maps that failed their frame-analysis quality checks (refused by default)")
     p.add_argument("--quiet", action="store_true", help="no progress log")
     p.set_defaults(func=run)
 
@@ -38,7 +40,8 @@ def run(args: argparse.Namespace) -> int:
     from granseg.diagnosis import diagnose
 
     d = diagnose(args.campaign, json=args.json, report=args.report, force=args.force,
-                 causes=args.causes, n_cells=args.n_cells, progress=not args.quiet)
+                 causes=args.causes, n_cells=args.n_cells, progress=not args.quiet,
+                 accept_flagged=args.accept_flagged)
     r = d.result
     print(f"cause: {r['cause']}  (explained: {str(r['explained']).lower()})")
     print(r["summary"])

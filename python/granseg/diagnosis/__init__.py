@@ -41,6 +41,7 @@ from granseg.diagnosis.catalogue import CATALOGUE, Baseline
 from granseg.diagnosis.evidence import Evidence, gather
 from granseg.diagnosis.fitting import Data, Fit, fit, loo_predict, model_maps, rmsd
 from granseg.diagnosis.noise import NoiseEstimate, campaign_floor
+from granseg.maps import check_accepted
 
 __all__ = ["CATALOGUE", "Diagnosis", "diagnose"]
 
@@ -127,6 +128,7 @@ def diagnose(
     gain_threshold: float = selection.GAIN_THRESHOLD,
     excess_threshold: float = selection.EXCESS_THRESHOLD,
     progress: bool = True,
+    accept_flagged: bool = False,
 ) -> Diagnosis:
     """Find what the baseline model gets wrong on a campaign, name the cause, measure the gain.
 
@@ -145,6 +147,8 @@ def diagnose(
         noise floor (defaults calibrated on null campaigns, see
         :mod:`granseg.diagnosis.selection`).
     progress : log each step to stderr.
+    accept_flagged : use maps that failed their frame-analysis quality checks
+        (refused by default with :class:`granseg.errors.FlaggedMapError`).
 
     Returns a :class:`Diagnosis`; ``Diagnosis.result`` is the JSON contract.
     """
@@ -156,6 +160,7 @@ def diagnose(
     exts = catalogue.build(causes)
     log = _printer(progress)
     maps = _as_maps(campaign)
+    check_accepted(maps, accept_flagged)
     opts = {k: v for k, v in dict(n_cells=n_cells, rtol=rtol, atol=atol).items() if v is not None}
     data = Data.of(maps, opts, log)
     timing: dict[str, float] = {}

@@ -4,15 +4,33 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["N_LAYERS", "in_window", "layer_index", "layer_counts"]
+__all__ = ["N_LAYERS", "WALL_CLEARANCE", "clear_of_walls", "in_window", "layer_index", "layer_counts"]
 
 N_LAYERS = 15
+# A free sphere's centre lies at least half a diameter from the lid and the
+# plate (more between the bumps). The hemispheres fixed to both walls, one
+# diameter across, are centred on the wall line: seen from the side their
+# outline fit puts them within about a third of a diameter of it. 0.3 d keeps
+# 0.2 d of slack for a window drawn slightly off the wall line.
+WALL_CLEARANCE = 0.3
 
 
 def in_window(x: np.ndarray, y: np.ndarray, window: tuple[float, float, float, float]) -> np.ndarray:
     """True where the centre (x, y) [undistorted px] lies in window = (x0, y0, x1, y1), half-open."""
     x0, y0, x1, y1 = window
     return (x >= x0) & (x < x1) & (y >= y0) & (y < y1)
+
+
+def clear_of_walls(y: np.ndarray, window: tuple[float, float, float, float], particle_diameter_px: float,
+                   clearance: float = WALL_CLEARANCE) -> np.ndarray:
+    """True where the centre height y [undistorted px] is at least ``clearance`` diameters from lid and plate.
+
+    The lid is at the window's y0, the plate at its y1.
+    """
+    _, y0, _, y1 = window
+    gap = clearance * particle_diameter_px
+    y = np.asarray(y, dtype=float)
+    return (y >= y0 + gap) & (y <= y1 - gap)
 
 
 def layer_index(y: np.ndarray, window: tuple[float, float, float, float], n_layers: int = N_LAYERS) -> np.ndarray:

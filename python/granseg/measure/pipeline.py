@@ -16,13 +16,19 @@ import numpy as np
 from tqdm import tqdm
 
 from granseg.measure.camera import Undistorter
-from granseg.measure.classify import classify_by_ranges, colour_features, learn_classes
+from granseg.measure.classify import (
+    MaterialClasses,
+    classify_by_ranges,
+    learn_classes,
+    sphere_features,
+)
 from granseg.measure.detect import Templates, detect_particles, learn_templates
 from granseg.measure.experiment import Experiment, load_experiment
-from granseg.measure.layers import N_LAYERS, in_window, layer_counts
+from granseg.measure.layers import N_LAYERS, clear_of_walls, in_window, layer_counts, layer_index
+from granseg.measure.quality import Quality, QualityWarning, assess
 from granseg.measure.sources import BadFrame, FrameDirectory, VideoFrames, open_frames
 
-__all__ = ["Analysis", "BadFrameWarning", "FrameSpheres", "analyze"]
+__all__ = ["Analysis", "BadFrameWarning", "FrameSpheres", "analyze", "write_detections"]
 
 log = logging.getLogger(__name__)
 
@@ -33,13 +39,22 @@ class BadFrameWarning(UserWarning):
 
 @dataclass
 class FrameSpheres:
-    """Spheres found in one frame: centres x, y and radius r [undistorted px], colour features."""
+    """Spheres found in one frame's window.
+
+    x, y, r: centre and radius [undistorted px]; score: correlation with the
+    template; features: appearance (classify.FEATURES); heavy, p_heavy: the
+    class and its probability (p_heavy None with explicit colour ranges);
+    wall: detections left out as hemispheres of the lid or plate (count).
+    """
 
     x: np.ndarray
     y: np.ndarray
     r: np.ndarray
+    score: np.ndarray
     features: np.ndarray
+    wall: int = 0
     heavy: np.ndarray | None = None
+    p_heavy: np.ndarray | None = None
 
 
 @dataclass
@@ -49,7 +64,9 @@ class Analysis:
     c, c_raw: (n_t, 15) heavy share (smoothed / raw; NaN = no reading);
     n, n_heavy: (n_t, 15) counts; t [s]; z [m]; smoothing_frames;
     spheres: per frame, FrameSpheres or None for a bad frame;
-    bad_frames: list of (frame name, problem); out: the map file written (or None).
+    bad_frames: list of (frame name, problem); out: the map file written (or None);
+    quality: the checks of :mod:`granseg.measure.quality` (also stored in the map);
+    classes: the learned heavy / light classifier (None with colour ranges).
     """
 
     c: np.ndarray
@@ -65,6 +82,9 @@ class Analysis:
     bad_frames: list[tuple[str, str]] = field(default_factory=list)
     out: Path | None = None
     previews: list[Path] = field(default_factory=list)
+    quality: Quality | None = None
+    classes: MaterialClasses | None = None
+    detections: Path | None = None
 
 
 def analyze(
@@ -78,6 +98,7 @@ def analyze(
     save: bool = True,
     workers: int | None = None,
     progress: bool = True,
+    detections: str | os.PathLike | None = None,
 ) -> Analysis:
     """Measure the heavy-concentration map of an experiment from its frames.
 
@@ -95,6 +116,12 @@ def analyze(
     save : write the map (False: only return it).
     workers : threads decoding and analysing frames (default: all cores).
     progress : show a progress bar.
+    detections : CSV file to write with one row per sphere counted (see
+        :func:`write_detections`).
+
+    Every map gets a quality record (:mod:`granseg.measure.quality`), stored
+    in the file as ``quality``; a failed check raises a
+    :class:`~granseg.measure.quality.QualityWarning` naming it.
 
     Returns an :class:`Analysis`. A frame that cannot be read or shows no
     spheres becomes a NaN row with a :class:`BadFrameWarning`; bad input
@@ -109,13 +136,29 @@ def analyze(
     out_path = Path(out) if out is not None else exp_path.parent / "map.npz"
     if save:
         check_writable(out_path, force)
+    if detections is not None:
+        check_writable(detections, force)
     fps = _frame_rate(exp, source)
-    keep = _preview_indices(len(source), preview_count) if preview is not None else set()
+    keep = _preview_indices(len(source), preview_count if preview is not None else 2)
     spheres, crops, bad, names = _detect_all(source, exp, workers, progress, keep)
-    _classify(spheres, exp)
+    classes = _classify(spheres, exp)
     result = _assemble(spheres, exp, fps, smooth, names, bad)
+    result.classes = classes
+    result.quality = _assess(result)
+    if not result.quality.ok:
+        warnings.warn(f"{exp.path.parent}: the map failed its quality checks: "
+                      + "; ".join(f"{c.name} {c.value:.3f} (limit {c.rule} {c.limit:.3f})"
+                                  for c in result.quality.failed), QualityWarning, stacklevel=2)
     if save:
         result.out = _save(result, out_path, force, fps)
+    if detections is not None:
+        result.detections = write_detections(detections, result, force=force)
+    if preview is None and not result.quality.ok and save:
+        # show the problem without being asked: first and last frame beside the map
+        preview = out_path.with_name(out_path.stem + "_preview")
+        if preview.exists() and any(preview.iterdir()) and not force:
+            log.warning("%s exists; no quality preview written (use --force or --preview DIR)", preview)
+            preview = None
     if preview is not None:
         from granseg.measure.preview import write_previews
 
@@ -158,21 +201,26 @@ class _FrameWorker:
 
     def learn(self, image: np.ndarray) -> None:
         """Learn the spheres' appearances from one frame (kept None if it shows too few spheres)."""
-        self.templates = learn_templates(self.undistort(image), self.exp.particle_diameter_px)
+        self.templates = learn_templates(self.undistort(_bgr(image)), self.exp.particle_diameter_px)
 
     def __call__(self, name: str, image: np.ndarray) -> tuple[FrameSpheres, np.ndarray]:
-        if image.ndim != 3 or (image.shape[1], image.shape[0]) != self.size:
+        if (image.shape[1], image.shape[0]) != self.size:
             raise BadFrame(f"{name}: size {image.shape[1]} x {image.shape[0]} differs from the first frame's "
                            f"{self.size[0]} x {self.size[1]}")
         crop = self.undistort(image)
         d = self.exp.particle_diameter_px
         found = detect_particles(crop, d, templates=self.templates)
-        feats = colour_features(crop, found[:, :2], d)
         x, y = found[:, 0] + self.crop[0], found[:, 1] + self.crop[1]
         inside = in_window(x, y, self.exp.window)
-        if not inside.any():
+        # hemispheres fixed to the lid and the plate sit on the wall line,
+        # where no free sphere's centre can be
+        clear = clear_of_walls(y, self.exp.window, d)
+        keep = inside & clear
+        if not keep.any():
             raise BadFrame(f"{name}: no spheres detected in the window")
-        return FrameSpheres(x[inside], y[inside], found[inside, 2], feats[inside]), crop
+        feats = sphere_features(crop, found[keep, :2], d)
+        return FrameSpheres(x[keep], y[keep], found[keep, 2], found[keep, 3], feats,
+                            wall=int((inside & ~clear).sum())), crop
 
 
 def _in_thread(source, worker, i: int, image: np.ndarray | None, keep_crop: bool):
@@ -248,11 +296,16 @@ def _first_image(source) -> np.ndarray:
     raise ValueError(f"{source.directory}: no readable frame ({problems[0]})")
 
 
+def _bgr(image: np.ndarray) -> np.ndarray:
+    """Colour frames as they come; grey frames (a monochrome camera) as three equal channels."""
+    return cv2.cvtColor(image, cv2.COLOR_GRAY2BGR) if image.ndim == 2 else image
+
+
 def _one_frame(source, worker, i, image):
     name = source.names[i] if i < len(source.names) else f"frame {i}"
     try:
         img = source.read(i) if image is None else image
-        return worker(name, img)
+        return worker(name, _bgr(img))
     except BadFrame as exc:
         return exc
 
@@ -283,23 +336,77 @@ def _check_video_length(source, names, results) -> None:
 # --------------------------------------------------------------------------- pass 2: classes
 
 
-def _classify(spheres: list[FrameSpheres | None], exp: Experiment) -> None:
+def _classify(spheres: list[FrameSpheres | None], exp: Experiment) -> MaterialClasses | None:
+    """Give every sphere its class: learned from the first good frame, or by explicit colour ranges."""
     good = [s for s in spheres if s is not None]
     if exp.colour_ranges:
         for s in good:
             s.heavy = classify_by_ranges(s.features, exp.colour_ranges)
-        return
-    pooled = np.concatenate([s.features for s in good])
-    rng = np.random.default_rng(0)
-    if len(pooled) > 20000:
-        pooled = pooled[rng.choice(len(pooled), 20000, replace=False)]
+        return None
     first = good[0]
     try:
-        classes = learn_classes(pooled, first.features, -first.y)
+        classes = learn_classes(first.features, _heights(first.y, exp), exp.c0, N_LAYERS)
     except ValueError as exc:
         raise ValueError(f"{exp.path.parent}: {exc}") from None
     for s in good:
-        s.heavy = classes.is_heavy(s.features)
+        s.p_heavy = classes.p_heavy(s.features)
+        s.heavy = s.p_heavy > 0.5
+    return classes
+
+
+def _heights(y: np.ndarray, exp: Experiment) -> np.ndarray:
+    """Height of centres y [undistorted px] above the bottom wall, in diameters (window = N_LAYERS d)."""
+    _, y0, _, y1 = exp.window
+    return (y1 - np.asarray(y, dtype=float)) / ((y1 - y0) / N_LAYERS)
+
+
+def _assess(result: Analysis) -> Quality:
+    good = [s for s in result.spheres if s is not None]
+    first = good[0]
+    learned = result.classes is not None
+    return assess(
+        n=result.n, n_heavy=result.n_heavy, c0=result.experiment.c0,
+        first_heights=_heights(first.y, result.experiment), first_heavy=first.heavy,
+        scores=np.concatenate([s.score for s in good]),
+        p_heavy=np.concatenate([s.p_heavy for s in good]) if learned else None,
+        separation=result.classes.separation if learned else None,
+        n_bad_frames=len(result.bad_frames),
+        wall_detections=float(np.mean([s.wall for s in good])),
+    )
+
+
+# --------------------------------------------------------------------------- detections
+
+
+DETECTION_COLUMNS = ("frame", "x", "y", "r", "class", "p_heavy", "layer")
+
+
+def write_detections(path: str | os.PathLike, result: Analysis, force: bool = False) -> Path:
+    """Write every counted sphere as a CSV row: frame, x, y, r, class, p_heavy, layer.
+
+    frame: the frame's index (0 = first, in name order); x, y: centre
+    [undistorted px, y down]; r: radius [px]; class: ``heavy`` or ``light``;
+    p_heavy: the learned probability of being heavy (empty with explicit
+    colour ranges); layer: 0 at the bottom wall. Written atomically; an
+    existing file is kept unless ``force``.
+    """
+    import csv
+
+    from granseg._io import atomic_path
+
+    path = Path(path)
+    with atomic_path(path, force=force, suffix=".csv") as tmp, open(tmp, "w", newline="", encoding="utf-8") as f:
+        w = csv.writer(f)
+        w.writerow(DETECTION_COLUMNS)
+        for i, s in enumerate(result.spheres):
+            if s is None:
+                continue
+            layer = layer_index(s.y, result.experiment.window)
+            p = s.p_heavy if s.p_heavy is not None else [None] * len(s.x)
+            for x, y, r, h, ph, j in zip(s.x, s.y, s.r, s.heavy, p, layer, strict=True):
+                w.writerow([i, f"{x:.2f}", f"{y:.2f}", f"{r:.2f}", "heavy" if h else "light",
+                            "" if ph is None else f"{ph:.4f}", int(j)])
+    return path
 
 
 # --------------------------------------------------------------------------- the map
@@ -337,4 +444,4 @@ def _save(result: Analysis, out: Path, force: bool, fps: float) -> Path:
 
     return save_map(out, c=result.c, t=result.t, z=result.z, **result.experiment.metadata(),
                     n=result.n, n_heavy=result.n_heavy, c_raw=result.c_raw, fps=fps,
-                    smoothing_frames=result.smoothing_frames, force=force)
+                    smoothing_frames=result.smoothing_frames, quality=result.quality.to_json(), force=force)

@@ -14,6 +14,8 @@ __all__ = ["draw_preview", "write_previews"]
 
 HEAVY_BGR = (40, 110, 255)  # orange
 LIGHT_BGR = (255, 200, 40)  # sky blue
+AMBIGUOUS_BGR = (220, 40, 220)  # magenta: p_heavy between the classes
+FAIL_BGR = (20, 20, 200)
 PANEL_PX = 230
 HEADER_PX = 54  # band above the image for the frame's caption
 
@@ -52,8 +54,11 @@ def draw_preview(crop: np.ndarray, result: Any, i: int) -> np.ndarray:
         yy = y1 - j * (y1 - y0) / N_LAYERS
         cv2.line(img, to_px(x0, yy), to_px(x1, yy), (230, 230, 230), 1, cv2.LINE_AA)
     cv2.rectangle(img, to_px(x0, y0), to_px(x1, y1), (255, 255, 255), 2, cv2.LINE_AA)
-    for x, y, r, h in zip(s.x, s.y, s.r, s.heavy, strict=True):
-        colour = HEAVY_BGR if h else LIGHT_BGR
+    from granseg.measure.classify import AMBIGUOUS
+
+    p = s.p_heavy if s.p_heavy is not None else np.where(s.heavy, 1.0, 0.0)
+    for x, y, r, h, ph in zip(s.x, s.y, s.r, s.heavy, p, strict=True):
+        colour = AMBIGUOUS_BGR if AMBIGUOUS[0] < ph < AMBIGUOUS[1] else HEAVY_BGR if h else LIGHT_BGR
         cv2.circle(img, to_px(x, y), int(round(r * scale * 0.92)), colour, 2, cv2.LINE_AA)
         cv2.circle(img, to_px(x, y), 2, colour, -1, cv2.LINE_AA)
     body = np.hstack([img, _panel(img.shape[0], result, i, to_px(0, y0)[1], to_px(0, y1)[1])])
@@ -74,8 +79,13 @@ def _header(width: int, result: Any, i: int) -> np.ndarray:
                 (8, 20), font, 0.5, dark, 1, cv2.LINE_AA)
     cv2.putText(band, "heavy", (8, 44), font, 0.45, HEAVY_BGR, 2, cv2.LINE_AA)
     cv2.putText(band, "light", (70, 44), font, 0.45, LIGHT_BGR, 2, cv2.LINE_AA)
-    cv2.putText(band, f"{result.experiment.heavy} / {result.experiment.light}", (130, 44), font, 0.45, dark,
+    cv2.putText(band, "ambiguous", (130, 44), font, 0.45, AMBIGUOUS_BGR, 2, cv2.LINE_AA)
+    cv2.putText(band, f"{result.experiment.heavy} / {result.experiment.light}", (240, 44), font, 0.45, dark,
                 1, cv2.LINE_AA)
+    q = getattr(result, "quality", None)
+    if q is not None and not q.ok:
+        text = "QUALITY FAILED: " + ", ".join(c.name for c in q.failed)
+        cv2.putText(band, text, (max(8, width - 9 * len(text) - 8), 20), font, 0.5, FAIL_BGR, 2, cv2.LINE_AA)
     return band
 
 

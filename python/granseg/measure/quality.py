@@ -1,0 +1,230 @@
+"""Can this map be trusted? Checks that need no ground truth, stored with every map.
+
+A frame analysis that goes wrong rarely fails: it writes a plausible map. So
+every map carries a quality record (the ``quality`` key of the map ``.npz``,
+DATA.md): each check's figure, its limit, whether it passed, and an overall
+``ok``. ``granseg analyze`` prints it and warns loudly when a check fails;
+``calibrate`` and ``diagnose`` refuse a flagged map unless told to accept it.
+
+The checks lean on what every run must show:
+
+- the two classes are told apart (cross-validated on the first frame's
+  labelled spheres; two materials that look alike score about one half), on
+  what the spheres are made of rather than where they sit, and few spheres of
+  the run are ambiguous;
+- the first frame is stratified: its depth-mean heavy share is c0, and the
+  spheres below the initial interface are light, those above heavy (a map
+  made with the classes swapped fails here);
+- detections are confident and stable: the spheres match their template
+  well, the count of each layer and of each frame stays steady, few frames
+  are bad;
+- the heavy share summed over depth is conserved: the run's last frames show
+  c0 as the first did, within the counting noise.
+
+Limits are set wide enough that every look of the test renderers passes with
+the detector working, and a single broken step (classes swapped or merged,
+a bad window, missed spheres) fails at least one; the reasons are beside
+each limit.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import asdict, dataclass
+from typing import Any
+
+import numpy as np
+
+from granseg.errors import QualityWarning
+
+__all__ = ["Check", "Quality", "QualityWarning", "assess"]
+
+VERSION = 1
+
+
+@dataclass(frozen=True)
+class Check:
+    """One check: its figure, the limit, which side of it passes, and what it tells."""
+
+    name: str
+    value: float
+    limit: float
+    rule: str  # "<=" or ">=": value rule limit passes
+    passed: bool
+    about: str
+
+    def line(self) -> str:
+        mark = "ok  " if self.passed else "FAIL"
+        return f"{mark} {self.name:<24} {self.value:8.3f}  (limit {self.rule} {self.limit:.3f})  {self.about}"
+
+
+@dataclass(frozen=True)
+class Quality:
+    """The checks of one map and their verdict; ``figures`` holds further numbers for the record."""
+
+    checks: tuple[Check, ...]
+    figures: dict[str, Any]
+
+    @property
+    def ok(self) -> bool:
+        return all(c.passed for c in self.checks)
+
+    @property
+    def failed(self) -> list[Check]:
+        return [c for c in self.checks if not c.passed]
+
+    def to_json(self) -> str:
+        return json.dumps({"version": VERSION, "ok": self.ok,
+                           "checks": {c.name: {k: (None if isinstance(v, float) and not np.isfinite(v) else v)
+                                                for k, v in asdict(c).items() if k != "name"}
+                                      for c in self.checks},
+                           "figures": self.figures}, allow_nan=False, default=_plain)
+
+    @classmethod
+    def from_json(cls, text: str) -> Quality:
+        raw = json.loads(text)
+        checks = tuple(Check(name=k, **{**v, "value": float("nan") if v["value"] is None else v["value"]})
+                       for k, v in raw.get("checks", {}).items())
+        return cls(checks, raw.get("figures", {}))
+
+    def report(self) -> str:
+        """The checks as aligned text lines, the verdict first; what to do under each failed check."""
+        head = "quality: ok" if self.ok else "quality: FAILED " + ", ".join(c.name for c in self.failed)
+        lines = [head]
+        for c in self.checks:
+            lines.append("  " + c.line())
+            if not c.passed and c.name in ADVICE:
+                lines.append("       -> " + ADVICE[c.name])
+        return "\n".join(lines)
+
+
+# What to do when a check fails, printed by ``granseg analyze`` under the failed check.
+ADVICE = {
+    "class_separation": "the two materials look alike to the detector: check the preview; give explicit "
+                        "colour ranges (heavy_hsv / light_hsv in experiment.json) or light the wall so "
+                        "they differ (a ring light at the lens shows gloss best)",
+    "class_by_height": "the classes follow height, not material: uneven lighting down the frame or motion "
+                       "blur of the fast bottom layers; even the lighting or shorten the exposure",
+    "ambiguous_spheres": "many spheres sit between the classes: check the preview (ambiguous spheres are "
+                         "drawn in magenta)",
+    "initial_heavy_share": "the first frame's heavy share is not c0: is c0 right, does the recording start "
+                           "stratified, are the classes right?",
+    "first_frame_order": "the first frame is not heavy above, light below: classes swapped (check colour "
+                         "ranges) or the recording does not start stratified",
+    "detection_confidence": "spheres match their template poorly: check particle_diameter_px, focus and "
+                            "the window in the preview",
+    "count_stability": "a layer's count jumps over time: check the window (y0 = lid, y1 = plate) and the "
+                       "preview",
+    "frame_totals": "some frames find far more or fewer spheres: lighting changes, dropped or corrupt frames",
+    "heavy_share_conserved": "the depth-mean heavy share drifts from c0: the window does not sample the "
+                             "bed fairly, or the classes drift over the run",
+    "bad_frames": "frames could not be read or showed no spheres; see the warnings above",
+}
+
+
+def _plain(o: Any) -> Any:
+    if isinstance(o, np.generic):
+        return o.item()
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    raise TypeError(f"not JSON serialisable: {type(o).__name__}")
+
+
+def _check(name: str, value: float, limit: float, rule: str, about: str) -> Check:
+    value = float(value)
+    passed = bool(np.isfinite(value) and (value <= limit if rule == "<=" else value >= limit))
+    return Check(name, value, float(limit), rule, passed, about)
+
+
+# --------------------------------------------------------------------------- the checks
+
+
+def assess(*, n: np.ndarray, n_heavy: np.ndarray, c0: float, first_heights: np.ndarray,
+           first_heavy: np.ndarray, scores: np.ndarray, p_heavy: np.ndarray | None,
+           separation: Any | None, n_bad_frames: int, wall_detections: float) -> Quality:
+    """Run every check on one analysed run.
+
+    n, n_heavy: (n_t, n_layers) counts (rows of bad frames all zero);
+    c0: the experiment's heavy fraction; first_heights [diameters above the
+    bottom wall] and first_heavy (bool) of the first good frame's spheres;
+    scores: template correlation of every counted sphere of the run;
+    p_heavy: every counted sphere's probability of being heavy (None with
+    explicit colour ranges); separation: the learned classes'
+    :class:`~granseg.measure.classify.Separation` (None with colour ranges);
+    n_bad_frames: frames without a reading; wall_detections: mean detections
+    per frame left out as hemispheres of the lid or the plate.
+    """
+    from granseg.measure.classify import AMBIGUOUS, MARGIN, interface_labels
+
+    n_t, n_layers = n.shape
+    good = n.sum(axis=1) > 0
+    checks: list[Check] = []
+    if separation is not None:
+        # 0.95: every pair of distinct materials of the test renderers scores
+        # >= 0.99; two identical materials score 0.4-0.6
+        checks.append(_check("class_separation", separation.cv_accuracy, 0.95, ">=",
+                             "cross-validated accuracy telling the first frame's heavy from light spheres"))
+        # 0.5: a height trend that explains half the gap makes the classes as much
+        # a map of the lighting (or of the motion blur) as of the materials
+        checks.append(_check("class_by_height", separation.height_share, 0.5, "<=",
+                             "share of the class difference explained by a sphere's height"))
+    if p_heavy is not None and len(p_heavy):
+        amb = float(np.mean((p_heavy > AMBIGUOUS[0]) & (p_heavy < AMBIGUOUS[1])))
+        # 0.05: distinct materials leave < 1 % ambiguous; a merged class leaves tens of %
+        checks.append(_check("ambiguous_spheres", amb, 0.05, "<=",
+                             f"share of spheres with p_heavy in {AMBIGUOUS}"))
+    first = int(np.argmax(good)) if good.any() else 0
+    n0 = n[first].sum()
+    share0 = n_heavy[first].sum() / max(n0, 1)
+    # the first frame's heavy share should equal c0 up to how rows fall at
+    # the interface (half a row of 15: 0.035) and counting noise
+    tol = 0.06 + 2 * np.sqrt(c0 * (1 - c0) / max(n0, 1))
+    checks.append(_check("initial_heavy_share", abs(share0 - c0), tol, "<=",
+                         f"|first frame's heavy share {share0:.3f} - c0 {c0:.3f}|"))
+    labels = interface_labels(first_heights, c0, n_layers, MARGIN)
+    heavy = np.asarray(first_heavy, dtype=bool)
+    wrong_below = heavy[labels == 0].mean() if (labels == 0).any() else 0.0
+    wrong_above = (~heavy[labels == 1]).mean() if (labels == 1).any() else 0.0
+    # 0.1: a swapped assignment puts ~100 % on the wrong side
+    checks.append(_check("first_frame_order", max(wrong_below, wrong_above), 0.1, "<=",
+                         f"first frame: heavy below the interface {wrong_below:.3f}, "
+                         f"light above it {wrong_above:.3f}"))
+    if len(scores):
+        # 0.5: real spheres of every test look match their template at >= 0.8
+        # in the median; a frame of background and gaps does not
+        checks.append(_check("detection_confidence", float(np.median(scores)), 0.5, ">=",
+                             "median correlation of the spheres with their template"))
+    if good.sum() >= 3:
+        layer_cv = _layer_cv(n[good])
+        # 0.35: sheared layers of ~10 spheres vary by 10-20 %; a layer that
+        # gains and loses spheres by a third is mis-binned or mis-detected
+        checks.append(_check("count_stability", float(np.nanmax(layer_cv)), 0.35, "<=",
+                             "largest variation (std / mean) of a layer's count over time"))
+        totals = n[good].sum(axis=1)
+        steady = np.mean(np.abs(totals / np.median(totals) - 1) <= 0.15)
+        checks.append(_check("frame_totals", float(steady), 0.95, ">=",
+                             "share of frames whose sphere count is within 15 % of the median"))
+        tail = n[good][-max(1, good.sum() // 3):]
+        tail_h = n_heavy[good][-max(1, good.sum() // 3):]
+        share_end = tail_h.sum() / max(tail.sum(), 1)
+        # conservation: the last third's depth-mean heavy share stays at c0,
+        # within how the window samples the bed and the counting noise
+        tol_end = 0.08 + 3 * np.sqrt(c0 * (1 - c0) / max(tail.sum() / len(tail), 1))
+        checks.append(_check("heavy_share_conserved", abs(share_end - c0), tol_end, "<=",
+                             f"|last third's heavy share {share_end:.3f} - c0 {c0:.3f}|"))
+    checks.append(_check("bad_frames", n_bad_frames / max(n_t, 1), 0.05, "<=",
+                         "share of frames without a reading"))
+    figures = {
+        "spheres_per_frame": float(n[good].sum(axis=1).mean()) if good.any() else 0.0,
+        "wall_detections_per_frame": float(wall_detections),
+        "first_frame": first,
+    }
+    if separation is not None:
+        figures.update(labelled_heavy=separation.n_heavy, labelled_light=separation.n_light)
+    return Quality(tuple(checks), figures)
+
+
+def _layer_cv(n: np.ndarray) -> np.ndarray:
+    mean = n.mean(axis=0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(mean >= 1, n.std(axis=0) / np.maximum(mean, 1e-9), np.nan)

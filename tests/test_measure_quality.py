@@ -1,0 +1,126 @@
+"""Maps that say when they cannot be trusted: learned classes, quality checks, refusal downstream."""
+
+from __future__ import annotations
+
+import csv
+import json
+import warnings
+
+import numpy as np
+import pytest
+
+from granseg.cli import main
+from granseg.errors import FlaggedMapError, QualityWarning
+from granseg.maps import check_accepted, load_map
+from granseg.measure import analyze
+from granseg.measure.quality import Quality, assess
+from granseg.synth import render_frames
+
+SMALL = dict(particle_diameter_px=20, image_size=(400, 480))
+
+
+def stratified_map(n_t: int, c0: float, n_layers: int = 15) -> np.ndarray:
+    """Heavy above (1 - c0) H at t = 0, relaxing linearly to a graded profile of mean c0."""
+    z = (np.arange(n_layers) + 0.5) / n_layers
+    t = np.linspace(0, 1, n_t)[:, None]
+    end = np.clip(c0 + 0.8 * c0 * (0.5 - z), 0, 1)
+    return np.clip(np.where(z > 1 - c0, 1.0, 0.0) * (1 - t) + end * t, 0, 1)
+
+
+def _analyze(tmp_path, c0=0.5, n_t=4, seed=7, **look):
+    r = render_frames(stratified_map(n_t, c0), seed=seed, out_dir=tmp_path, **{**SMALL, **look})
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", QualityWarning)
+        a = analyze(tmp_path, smooth=1, save=False, progress=False, workers=2)
+    return r, a
+
+
+@pytest.mark.parametrize("heavy, light, c0", [
+    ("steel", "pom", 0.25),  # grey on grey: brightness and gloss, hardly hue (issue 9)
+    ("glass", "pom", 0.5),
+    ("ceramic", "pp", 0.75),
+])
+def test_learned_classes_give_the_map_and_pass_every_check(tmp_path, heavy, light, c0):
+    r, a = _analyze(tmp_path, c0=c0, heavy=heavy, light=light)
+    assert np.sqrt(np.nanmean((a.c_raw - r.c_raw) ** 2)) <= 0.03
+    assert a.quality.ok, a.quality.report()
+    assert a.classes.separation.cv_accuracy >= 0.99
+
+
+@pytest.mark.parametrize("look", ["pp", "pom"])
+def test_identical_materials_are_flagged_not_split(tmp_path, look):
+    _, a = _analyze(tmp_path, heavy=look, light=look, lighting="left")
+    failed = {c.name for c in a.quality.failed}
+    assert "class_separation" in failed and a.classes.separation.cv_accuracy < 0.8
+
+
+def _first_frame_checks(heavy_of):
+    """Quality of a perfect stratified first frame whose classes are then set by ``heavy_of``."""
+    rng = np.random.default_rng(0)
+    h = rng.uniform(0.5, 14.5, 140)  # heights [d] of the first frame's spheres
+    heavy = heavy_of(h > 7.5)
+    n = np.zeros((3, 15), int)
+    nh = np.zeros((3, 15), int)
+    layer = np.floor(h).astype(int)
+    for i in range(3):
+        n[i] = np.bincount(layer, minlength=15)
+        nh[i] = np.bincount(layer[heavy], minlength=15)
+    return assess(n=n, n_heavy=nh, c0=0.5, first_heights=h, first_heavy=heavy, scores=np.full(140, 0.9),
+                  p_heavy=None, separation=None, n_bad_frames=0, wall_detections=0.0)
+
+
+def test_consistency_checks_catch_a_wrong_class_assignment():
+    assert _first_frame_checks(lambda truth: truth).ok
+    swapped = {c.name for c in _first_frame_checks(lambda truth: ~truth).failed}
+    assert "first_frame_order" in swapped
+    all_heavy = {c.name for c in _first_frame_checks(lambda truth: np.ones_like(truth)).failed}
+    assert {"initial_heavy_share", "first_frame_order", "heavy_share_conserved"} <= all_heavy
+
+
+def test_quality_is_stored_in_the_map_and_refused_downstream(tmp_path):
+    frames = tmp_path / "frames"
+    render_frames(stratified_map(4, 0.5), seed=3, out_dir=frames, heavy="pp", light="pp", **SMALL)
+    with pytest.warns(QualityWarning, match="class_separation"):
+        a = analyze(frames, out=tmp_path / "flagged.npz", smooth=1, progress=False, workers=2)
+    assert a.previews, "a failed check writes the preview that shows it"
+    assert (tmp_path / "flagged_preview").is_dir()
+    with pytest.warns(QualityWarning, match="class_separation"):
+        m = load_map(a.out)
+    record = json.loads(m.quality)
+    assert record["ok"] is False and record["checks"]["class_separation"]["passed"] is False
+    assert Quality.from_json(m.quality).failed[0].name == a.quality.failed[0].name
+    with pytest.raises(FlaggedMapError, match="flagged.npz: .*class_separation"):
+        check_accepted([m], accept_flagged=False)
+    check_accepted([m], accept_flagged=True)
+    from granseg.calibration import calibrate
+
+    with pytest.raises(FlaggedMapError, match="--accept-flagged"):
+        calibrate([m], progress=False)
+
+
+def test_cli_strict_exit_and_detections_csv(tmp_path, capsys):
+    good, bad = tmp_path / "good", tmp_path / "bad"
+    r = render_frames(stratified_map(3, 0.5), seed=4, out_dir=good, heavy="glass", light="pp", **SMALL)
+    render_frames(stratified_map(3, 0.5), seed=4, out_dir=bad, heavy="pp", light="pp", **SMALL)
+    det = tmp_path / "det.csv"
+    assert main(["analyze", str(good), "--no-progress", "--strict", "--smooth", "1",
+                 "--detections", str(det)]) == 0
+    out = capsys.readouterr().out
+    assert "quality: ok" in out and "initial_heavy_share" in out
+    with open(det, newline="") as f:
+        rows = list(csv.DictReader(f))
+    assert list(rows[0]) == ["frame", "x", "y", "r", "class", "p_heavy", "layer"]
+    m = load_map(good / "map.npz")
+    assert len(rows) == int(m.n.sum())
+    for i in range(3):
+        layer = np.array([int(x["layer"]) for x in rows if int(x["frame"]) == i])
+        heavy = np.array([x["class"] == "heavy" for x in rows if int(x["frame"]) == i])
+        assert np.array_equal(np.bincount(layer, minlength=15), m.n[i])
+        assert np.array_equal(np.bincount(layer[heavy], minlength=15), m.n_heavy[i])
+    assert np.abs(m.c_raw - r.c_raw).max() <= 0.2
+    # the detections file is an output like any other: not replaced without --force
+    assert main(["analyze", str(good), "--no-progress", "--detections", str(det), "--out",
+                 str(tmp_path / "other.npz")]) == 2
+    assert main(["analyze", str(bad), "--no-progress", "--strict"]) == 3
+    err = capsys.readouterr().err
+    assert "WARNING" in err and "class_separation" in err
