@@ -70,8 +70,8 @@ MATERIAL_LOOKS: dict[str, dict[str, Any]] = {
                     glass=False, size_spread=0.008, material="pp"),
 }
 
-# Printed PLA of the bumpy lid and plate (the paper's horizontal walls): matte grey.
-WALL_LOOK: dict[str, Any] = dict(colour=(0.38, 0.38, 0.40), kd=0.85, ks=0.25, shininess=15, metal=False,
+# Printed PLA of the bumpy lid and plate (the paper's horizontal walls): matte light grey.
+WALL_LOOK: dict[str, Any] = dict(colour=(0.52, 0.52, 0.54), kd=0.85, ks=0.25, shininess=15, metal=False,
                                  glass=False, size_spread=0.0, name="pla")
 
 # Video codecs of render_frames(video=...): MPEG-4 Part 2 through OpenCV, H.264 through PyAV (libx264).
