@@ -3,30 +3,50 @@
 Learning, once per run (:func:`learn_templates`): OpenCV's Hough circle
 transform and a blob detector, run where a sphere is about 28 px across on a
 locally contrast-normalised copy (dark spheres count as much as bright ones),
-propose spheres generously; circles fitted to their outlines confirm them;
-the mean patch of each colour group of confirmed spheres is a first template
+propose spheres generously; circles fitted to their outlines confirm them,
+once with spheres taken as brighter than their surroundings and once as
+darker, and the polarity whose confirmed spheres look like it wins
+(:func:`_polarity`; from then on the grey image is inverted when spheres are
+darker, so that every later step sees bright spheres). The mean patch of
+each colour group of confirmed spheres is a first template
 (:mod:`granseg.measure.templates`). Those spheres are found again with it and
 refined as every frame's are, and the final templates are cut around the
-refined centres.
+refined centres. Last, the confirmed spheres set how sharp a sphere's rim
+must be (:func:`_rim_limits`).
 
-Every frame (:func:`detect_particles`): the spheres are the matches of the
-templates over the sphere disk, each given the group its colour belongs to,
-and each is placed by a robust circle fit to its outline
-(:mod:`granseg.measure.outline`).
+Every frame (:func:`detect_particles`): the candidates are the matches of
+the templates over the sphere disk, each given the group its colour belongs
+to, and each is placed by a robust circle fit to its outline
+(:mod:`granseg.measure.outline`); a candidate is a sphere if its outline is
+a sharp rim at the sphere's size around at least half of it, as sharp as
+its group's confirmed spheres' within their scatter (:func:`_examine`):
+background, gaps, a free surface and smaller spheres are not.
 """
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import cv2
 import numpy as np
 
-from granseg.measure.outline import outline_centres, refine_circles
+from granseg.measure.outline import fit_outlines, refine_circles
 from granseg.measure.templates import Templates, build_templates, find_spheres
 
 __all__ = ["Templates", "detect_particles", "learn_templates", "to_gray"]
 
 HOUGH_DIAMETER_PX = 28.0  # Hough runs at a scale where spheres are about this wide
 SMOOTH_SIGMA_PX = 0.5  # blur of the grey image that detection works on [px]
+# A candidate is a sphere only if its rim score (_examine) is at most RIM_SD
+# robust standard deviations (1.4826 MAD) below the median of its group's
+# confirmed spheres. Measured in those units against the first frame's
+# limits: real spheres reach -5 (black beads on a backlight, 1 in 3000 below
+# -4; the synthetic scenes' spheres stay above -4: the score's lower tail
+# is heavier than a normal one's, hence not 3-4); background, gaps, the free
+# surface, 4 mm beads among 6 mm ones and spheres cut by the image border all
+# lie below -10 (synthetic: the lid and walls below -19).
+RIM_SD = 7.0
+MIN_CONFIRMED = 30  # confirmed spheres a group needs for rim limits of its own (median and MAD of fewer are noisy)
 
 
 def to_gray(image: np.ndarray) -> np.ndarray:
@@ -36,15 +56,56 @@ def to_gray(image: np.ndarray) -> np.ndarray:
     return image.astype(np.float32)
 
 
-def _smooth(image: np.ndarray, d: float) -> np.ndarray:
-    """Grey image with a light blur against noise.
+def _smooth(image: np.ndarray, d: float, sign: int = 1) -> np.ndarray:
+    """Grey image with a light blur against noise, spheres brighter than their surroundings.
+
+    ``sign`` is the spheres' polarity (:attr:`Templates.sign`): -1 (spheres
+    darker than their surroundings) inverts the image, so that everything
+    downstream (template match, outline fit) sees bright spheres.
 
     No more than 0.5 px: blur pulls the outline edge found on a sphere's
     shadowed side inwards (its shading falls towards the edge), and so
     shifts centres towards the lamp (measured: ceramic under a side lamp
     0.23 px up at 0.95 px blur, 0.17 px at 0.5 px, 0.42 px at 1.5 px).
     """
-    return cv2.GaussianBlur(to_gray(image), (0, 0), SMOOTH_SIGMA_PX)
+    blur = cv2.GaussianBlur(to_gray(image), (0, 0), SMOOTH_SIGMA_PX)
+    return blur if sign > 0 else 255.0 - blur
+
+
+def _polarity(image: np.ndarray, candidates: dict[int, np.ndarray], d: float) -> tuple[int, np.ndarray]:
+    """Whether the spheres are brighter (+1) or darker (-1) than their surroundings, and their seeds.
+
+    The outline fit looks for an outward drop: on the image of either sign
+    it confirms circles, centred on the spheres in both cases (on the wrong
+    sign the edge it finds is the neighbour's or the background's, further
+    out). What tells the signs apart is the mean patch of each sign's seeds:
+    the sphere's disk (within 0.8 radii) against its annulus (1-1.5 radii).
+    Both signs' seeds sit on the spheres, so both mean patches show the
+    spheres' own contrast, the right sign's more clearly (measured, disk -
+    annulus grey levels for sign +1 / -1 seeds: black beads on a backlight
+    -3 / -98; the six synthetic scenes +35 to +82 / +2 to +37). So the sign
+    s with the largest s x contrast wins: no threshold, and a margin of at
+    least 85 grey levels on all seven.
+    """
+    blur = _smooth(image, d)
+    half = int(np.ceil(0.75 * d))
+    size = 2 * half + 1
+    yy, xx = np.mgrid[0:size, 0:size] - half
+    rho = np.hypot(xx, yy) / (0.5 * d)
+    disk, annulus = rho <= 0.8, (rho >= 1.0) & (rho <= 1.5)
+    best = (-np.inf, 1, np.zeros((0, 4)))
+    for sign in (1, -1):
+        if len(candidates[sign]) == 0:
+            continue
+        seeds = _select(refine_circles(_smooth(image, d, sign), candidates[sign], d), d)
+        if len(seeds) < 3:
+            continue
+        mean = np.mean([cv2.getRectSubPix(blur, (size, size), (float(x), float(y))) for x, y in seeds[:, :2]],
+                       axis=0)
+        contrast = sign * float(mean[disk].mean() - mean[annulus].mean())
+        if contrast > best[0]:
+            best = (contrast, sign, seeds)
+    return best[1], best[2]
 
 
 def learn_templates(image: np.ndarray, particle_diameter_px: float) -> Templates | None:
@@ -58,23 +119,31 @@ def learn_templates(image: np.ndarray, particle_diameter_px: float) -> Templates
     went astray; issue 3).
     """
     d = float(particle_diameter_px)
-    smooth = _smooth(image, d)
-    candidates = _candidates(to_gray(image), d)
-    if candidates.size == 0:
-        return None
-    seeds = _select(refine_circles(smooth, candidates, d), d)
+    sign, seeds = _polarity(image, _candidates(to_gray(image), d), d)
     if len(seeds) < 3:
         return None
-    first = build_templates(smooth, image, seeds[:, :2], d)
+    smooth = _smooth(image, d, sign)
+    first = build_templates(smooth, image, seeds[:, :2], d, sign=sign)
     found = find_spheres(smooth, image, first)
     # only confirmed spheres: other matches (at the lid, in voids) would blur the templates
-    if len(found):
-        gap = np.hypot(*(found[:, None, :2] - seeds[None, :, :2]).transpose(2, 0, 1)).min(axis=1)
-        found = found[gap < 0.3 * d]
+    found = found[_near(found[:, :2], seeds[:, :2], 0.3 * d)]
     if len(found) < 3:
         return first
-    refined = outline_centres(smooth, found[:, :2], found[:, 2], d)
-    return build_templates(smooth, image, refined, d, centred=True)
+    refined = fit_outlines(smooth, found[:, :2], found[:, 2], d).centres
+    templates = build_templates(smooth, image, refined, d, centred=True, sign=sign)
+    # the limits of "looks like a sphere", from the confirmed spheres as every frame's are scored
+    found, rim = _examine(smooth, image, templates)
+    confirmed = _near(found[:, :2], seeds[:, :2], 0.3 * d)
+    if np.isfinite(rim[confirmed]).sum() < MIN_CONFIRMED:
+        return templates
+    return replace(templates, rim_limits=_rim_limits(rim[confirmed], found[confirmed, 4], len(templates.patches)))
+
+
+def _near(points: np.ndarray, others: np.ndarray, dist: float) -> np.ndarray:
+    """Whether each of ``points`` (m, 2) lies within ``dist`` of one of ``others`` (n, 2)."""
+    if len(points) == 0 or len(others) == 0:
+        return np.zeros(len(points), dtype=bool)
+    return np.hypot(*(points[:, None, :] - others[None, :, :]).transpose(2, 0, 1)).min(axis=1) < dist
 
 
 def detect_particles(image: np.ndarray, particle_diameter_px: float, templates: Templates | None = None,
@@ -100,24 +169,67 @@ def detect_particles(image: np.ndarray, particle_diameter_px: float, templates: 
         templates = learn_templates(image, d)
         if templates is None:
             return np.zeros((0, 5 if groups else 4))
-    smooth = _smooth(image, d)
-    found = find_spheres(smooth, image, templates)
-    found[:, :2] = outline_centres(smooth, found[:, :2], found[:, 2], d)
+    smooth = _smooth(image, d, templates.sign)
+    found, rim = _examine(smooth, image, templates)
+    if templates.rim_limits is not None:
+        found = found[rim >= templates.rim_limits[found[:, 4].astype(int)]]
     return found if groups else found[:, :4]
 
 
-def _candidates(gray: np.ndarray, d: float) -> np.ndarray:
-    """Candidate centres (x, y) in full-resolution pixels: Hough circles and bright blobs.
+def _examine(smooth: np.ndarray, image: np.ndarray, templates: Templates) -> tuple[np.ndarray, np.ndarray]:
+    """Every candidate sphere of a frame, placed by its outline, and its rim score.
 
-    Both run on a locally contrast-normalised copy at reduced scale, so that
-    dark spheres (POM) are found as readily as bright ones.
+    Returns found (m, 5: x, y, radius, correlation, group) and rim (m,): the
+    logarithm of the median, over the outline fit's rays, of the sharpness
+    of the edge at the expected radius (0, so -inf, on a ray without a
+    falling edge there). It is high only if at least half the rim is a sharp
+    outline at the sphere's size: not on a patch of background (no edge), a
+    gap between spheres or the free surface (edges of the other sign or at
+    other distances), a smaller sphere (its edge well inside the search
+    band) or a sphere cut by the image border. A logarithm, because edges
+    scale with the lamps: twice the light, twice the sharpness.
+    """
+    found = find_spheres(smooth, image, templates)
+    outlines = fit_outlines(smooth, found[:, :2], found[:, 2], templates.d)
+    found[:, :2] = outlines.centres
+    with np.errstate(divide="ignore"):
+        rim = np.log(np.median(outlines.strength, axis=1))
+    return found, rim
+
+
+def _rim_limits(rim: np.ndarray, group: np.ndarray, n_groups: int) -> np.ndarray:
+    """Per group, the lowest rim score (:func:`_examine`) of a sphere: RIM_SD robust sd below the median.
+
+    Learned from the confirmed spheres of the first frame (median and MAD,
+    robust to the few odd ones among them); a group with fewer than
+    MIN_CONFIRMED of them takes the limit of all confirmed spheres.
+    """
+    def limit(x: np.ndarray) -> float:
+        x = x[np.isfinite(x)]
+        med = float(np.median(x))
+        return med - RIM_SD * 1.4826 * float(np.median(np.abs(x - med)))
+
+    pooled = limit(rim)
+    return np.array([limit(rim[group == g]) if np.isfinite(rim[group == g]).sum() >= MIN_CONFIRMED else pooled
+                     for g in range(n_groups)])
+
+
+def _candidates(gray: np.ndarray, d: float) -> dict[int, np.ndarray]:
+    """Candidate centres (x, y) in full-resolution pixels, per polarity: Hough circles and blobs.
+
+    All run on a locally contrast-normalised copy at reduced scale, so that
+    dark spheres (POM) are found as readily as bright ones. The circles
+    serve either polarity; the blobs are bright ones for spheres brighter
+    than their surroundings (+1), dark ones for darker spheres (-1, black
+    beads on a backlight); the other kind are the gaps between spheres.
     """
     scale = min(1.0, HOUGH_DIAMETER_PX / d)
     small = cv2.resize(gray, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA) if scale < 1 else gray
     norm = _local_contrast(small, d * scale)
-    found = np.concatenate([_hough(norm, d * scale), _blobs(norm, d * scale)])
+    circles = _hough(norm, d * scale)
     # scaled pixel centres -> full-resolution pixel centres
-    return (found + 0.5) / scale - 0.5
+    return {sign: (np.concatenate([circles, _blobs(norm if sign > 0 else 255 - norm, d * scale)]) + 0.5) / scale - 0.5
+            for sign in (1, -1)}
 
 
 def _local_contrast(img: np.ndarray, d: float) -> np.ndarray:
@@ -166,4 +278,15 @@ def _select(circles: np.ndarray, d: float) -> np.ndarray:
         kept.append(i)
     out = circles[kept]
     weak = out[:, 3] * out[:, 4] < 0.25 * np.median(out[:, 3] * out[:, 4])
-    return out[~weak][:, :4]
+    out = out[~weak]
+    # One size: a bed may hold spheres of another size too (4 mm beads among
+    # 6 mm ones: fitted radii 0.68-0.75 of d/2 against 0.95 +- 0.01), which
+    # would otherwise make a template group of their own, with the radius of
+    # the spheres asked for. Seeds more than 4 robust standard deviations of
+    # the seeds' radii from their median are left out; the spread is that of
+    # the fits, not of the sizes (0.03-0.09 of d/2 on the synthetic scenes,
+    # where the shading moves the steepest drop inwards), so only a distinct
+    # population is cut, and a real sphere lost as a seed is still found.
+    r = out[:, 2]
+    spread = 1.4826 * np.median(np.abs(r - np.median(r)))
+    return out[np.abs(r - np.median(r)) <= 4 * spread + 1e-9][:, :4]

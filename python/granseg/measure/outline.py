@@ -1,16 +1,21 @@
 """Sphere centres from their outlines: circles fitted to where the brightness falls at the rim.
 
 :func:`refine_circles` confirms rough candidates (rim searched widely, radius
-free); :func:`outline_centres` places spheres found by their templates to a
-few tenths of a pixel; :func:`ring_centre` finds the sphere in a mean patch.
+free); :func:`fit_outlines` places spheres found by their templates to a
+few tenths of a pixel and tells how sharp their rims are; :func:`ring_centre`
+finds the sphere in a mean patch. All take images in which the spheres are
+brighter than their surroundings (the detector inverts the grey image when
+they are darker, :func:`granseg.measure.detect._smooth`).
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import cv2
 import numpy as np
 
-__all__ = ["outline_centres", "refine_circles", "ring_centre"]
+__all__ = ["Outlines", "fit_outlines", "outline_centres", "refine_circles", "ring_centre"]
 
 N_RAYS = 40
 # The rim is searched within RIM_SEARCH_PX + RIM_SEARCH_SIZE x radius of the
@@ -49,9 +54,7 @@ def _fit_outline(smooth: np.ndarray, c: np.ndarray, d: float) -> np.ndarray:
     px = c[:, 0, None, None] + steps[None, None, :] * cos[None, :, None]
     py = c[:, 1, None, None] + steps[None, None, :] * sin[None, :, None]
     m, k, s = px.shape
-    prof = cv2.remap(smooth, px.reshape(m * k, s).astype(np.float32),
-                     py.reshape(m * k, s).astype(np.float32), cv2.INTER_LINEAR,
-                     borderMode=cv2.BORDER_REPLICATE).reshape(m, k, s)
+    prof = _sample(smooth, px.reshape(m * k, s), py.reshape(m * k, s)).reshape(m, k, s)
     drop = (prof[:, :, :-2] - prof[:, :, 2:]) / 2.0  # outward brightness drop per 0.5 px
     best = np.argmax(drop, axis=2)
     peak = np.take_along_axis(drop, best[..., None], 2)[..., 0]
@@ -94,9 +97,31 @@ def _kasa(ex: np.ndarray, ey: np.ndarray, w: np.ndarray) -> np.ndarray:
     return np.column_stack([cx + mx, cy + my, r])
 
 
+@dataclass(frozen=True)
+class Outlines:
+    """Circles fitted to spheres' outlines by :func:`fit_outlines` (m spheres, k rays).
+
+    centres: (m, 2) x, y [px]; radius: (m,) fitted radius [px] (the expected
+    one where too few rays agreed); strength: (m, k) sharpness of each ray's
+    edge (outward drop per px less its local mean; 0 where none);
+    inlier: (m, k) the rays whose edge agrees with the fitted circle.
+    """
+
+    centres: np.ndarray
+    radius: np.ndarray
+    strength: np.ndarray
+    inlier: np.ndarray
+
+
 def outline_centres(smooth: np.ndarray, centres: np.ndarray, radii: np.ndarray, d: float,
                     iterations: int = 3, n_rays: int = 48) -> np.ndarray:
-    """Centres (m, 2) of circles about the known radii fitted to the spheres' outlines.
+    """Centres (m, 2) of circles about the known radii fitted to the spheres' outlines (:func:`fit_outlines`)."""
+    return fit_outlines(smooth, centres, radii, d, iterations, n_rays).centres
+
+
+def fit_outlines(smooth: np.ndarray, centres: np.ndarray, radii: np.ndarray, d: float,
+                 iterations: int = 3, n_rays: int = 48) -> Outlines:
+    """Circles about the known radii fitted to the spheres' outlines.
 
     Template peaks and brightness are shifted by shading and highlights, the
     silhouette is not. Along ``n_rays`` rays from each approximate centre the
@@ -111,11 +136,15 @@ def outline_centres(smooth: np.ndarray, centres: np.ndarray, radii: np.ndarray, 
     too (sizes spread by a few per cent; with the radius fixed, a sphere 3 %
     larger than the template is pulled 0.5 px towards the side where
     neighbours hide its outline).
+
+    ``smooth`` must show the spheres brighter than their surroundings (the
+    detector passes the inverted image when they are darker).
     """
     c = np.asarray(centres, dtype=float).copy()
-    if len(c) == 0:
-        return c
     radius = np.asarray(radii, dtype=float)
+    if len(c) == 0:
+        return Outlines(c.reshape(0, 2), radius.copy(), np.zeros((0, n_rays)), np.zeros((0, n_rays), bool))
+    fitted = radius.copy()
     theta = np.linspace(0, 2 * np.pi, n_rays, endpoint=False)
     ray = np.column_stack([np.cos(theta), np.sin(theta)])
     r_max = float(radius.max())
@@ -129,8 +158,7 @@ def outline_centres(smooth: np.ndarray, centres: np.ndarray, radii: np.ndarray, 
         px = c[:, 0, None, None] + steps[None, None, :] * ray[None, :, 0, None]
         py = c[:, 1, None, None] + steps[None, None, :] * ray[None, :, 1, None]
         m, k, s = px.shape
-        prof = cv2.remap(smooth, px.reshape(m * k, s).astype(np.float32), py.reshape(m * k, s).astype(np.float32),
-                         cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        prof = _sample(smooth, px.reshape(m * k, s), py.reshape(m * k, s))
         drop = (prof[:, :-2] - prof[:, 2:]) / 2.0
         sharp = drop - cv2.filter2D(drop, -1, kernel[None, :], borderType=cv2.BORDER_REPLICATE)
         sharp = sharp.reshape(m, k, s - 2)
@@ -159,7 +187,22 @@ def outline_centres(smooth: np.ndarray, centres: np.ndarray, radii: np.ndarray, 
             w = (ok & (resid < scale)).astype(float) * wt
         good = (w > 0).sum(axis=1) >= 6
         c[good] += np.clip(sol[good, :2], -3.0, 3.0)
-    return c
+        fitted = np.where(good, radius + sol[:, 2], radius)
+    return Outlines(c, fitted, np.where(ok, peak, 0.0), w > 0)
+
+
+def _sample(image: np.ndarray, px: np.ndarray, py: np.ndarray) -> np.ndarray:
+    """``image`` (float32) at the points (px, py) (n, s), bilinear, edges replicated.
+
+    In blocks of rows: cv2.remap takes maps of fewer than 32767 rows (a
+    frame's 700 spheres of 48 rays each are more).
+    """
+    px, py = px.astype(np.float32), py.astype(np.float32)
+    out = np.empty(px.shape, np.float32)
+    for i in range(0, len(px), 32000):
+        out[i:i + 32000] = cv2.remap(image, px[i:i + 32000], py[i:i + 32000], cv2.INTER_LINEAR,
+                                     borderMode=cv2.BORDER_REPLICATE)
+    return out
 
 
 def ring_centre(patch: np.ndarray, d: float) -> tuple[float, float, float]:
@@ -192,7 +235,6 @@ def _ring_scores(patch, cx, cy, radii, ray) -> np.ndarray:
     base = np.stack([cx, cy], axis=1)[:, None, None, :]
     xin, xout = base + pts_in, base + pts_out
     n, m, k, _ = xin.shape
-    flat = np.concatenate([xin, xout], axis=2).reshape(n * m, 2 * k, 2).astype(np.float32)
-    vals = cv2.remap(patch, flat[..., 0], flat[..., 1], cv2.INTER_LINEAR,
-                     borderMode=cv2.BORDER_REPLICATE).reshape(n, m, 2 * k)
+    flat = np.concatenate([xin, xout], axis=2).reshape(n * m, 2 * k, 2)
+    vals = _sample(patch, flat[..., 0], flat[..., 1]).reshape(n, m, 2 * k)
     return (vals[..., :k] - vals[..., k:]).mean(axis=2)

@@ -40,7 +40,11 @@ class Templates:
     offsets: (k, 2) position of the sphere centre relative to the patch middle [px];
     radii: (k,) sphere radius [px]; colours: (k, c) mean colour of the group's
     sphere middles (as :func:`_middle_colours` measures it); disks: per group,
-    the sphere's disk as a float32 mask over the patch; d: particle diameter [px].
+    the sphere's disk as a float32 mask over the patch; d: particle diameter [px];
+    sign: +1 if the spheres are brighter than their surroundings, -1 if darker
+    (the patches are then of the inverted grey image, where spheres are bright);
+    rim_limits: (k,) per group, the lowest rim score of a sphere (see
+    :func:`granseg.measure.detect._examine`), None to accept every match.
     """
 
     patches: tuple[np.ndarray, ...]
@@ -49,6 +53,8 @@ class Templates:
     colours: np.ndarray
     disks: tuple[np.ndarray, ...]
     d: float
+    sign: int = 1
+    rim_limits: np.ndarray | None = None
 
     @property
     def half(self) -> int:
@@ -56,7 +62,7 @@ class Templates:
 
 
 def build_templates(smooth: np.ndarray, image: np.ndarray, centres: np.ndarray, d: float,
-                    centred: bool = False) -> Templates:
+                    centred: bool = False, sign: int = 1) -> Templates:
     """Mean grey patch of ``smooth`` per colour group of the spheres at ``centres`` (m, 2).
 
     The groups are the two colour clusters of the spheres' middles in the
@@ -80,7 +86,7 @@ def build_templates(smooth: np.ndarray, image: np.ndarray, centres: np.ndarray, 
         mean_colours.append(colours[groups == g].mean(axis=0))
         disks.append(_disk(size, offset, DISK * r))
     return Templates(tuple(means), np.array(offsets, dtype=float), np.array(radii, dtype=float),
-                     np.array(mean_colours, dtype=float), tuple(disks), float(d))
+                     np.array(mean_colours, dtype=float), tuple(disks), float(d), int(sign))
 
 
 def _disk(size: int, offset, radius: float) -> np.ndarray:
