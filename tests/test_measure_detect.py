@@ -1,11 +1,16 @@
-"""Building blocks of the sphere detector: the disk correlation and its coordinates."""
+"""Building blocks of the sphere detector: the disk correlation and its coordinates, polarity, outline fit."""
 
 from __future__ import annotations
+
+from dataclasses import replace
 
 import cv2
 import numpy as np
 import pytest
+from scipy.spatial import cKDTree
 
+from granseg.measure.detect import detect_particles, learn_templates
+from granseg.measure.outline import fit_outlines
 from granseg.measure.templates import DiskScores, Templates, _disk, _masked_correlation
 
 
@@ -41,3 +46,66 @@ def test_disk_scores_find_a_sphere_where_it_is(d):
     assert abs(x[0] - x0) <= 0.5 / scores.scale + 0.1 and abs(y[0] - y0) <= 0.5 / scores.scale + 0.1
     back = scores.to_map(x, y, np.zeros((1, 2)))
     assert (back[0][0], back[1][0]) == (col, row)
+
+
+def _disk_scene(d: float, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """Bright, shaded disks in rows with gaps on a dark ground, and their centres.
+
+    Above them, on empty ground: a row of disks of 0.65 d (smaller spheres)
+    and a bright stripe (a free surface).
+    """
+    rng = np.random.default_rng(seed)
+    h, w = int(9 * d), int(14 * d)
+    centres = []
+    for row, y in enumerate(np.arange(3.6 * d, h - 0.8 * d, 0.93 * d)):
+        for x in np.arange(0.9 * d + 0.5 * d * (row % 2), w - 0.8 * d, 1.04 * d):
+            centres.append((x + rng.uniform(-0.02, 0.02) * d, y + rng.uniform(-0.02, 0.02) * d))
+    centres = np.array(centres)
+    small = [(x, 2.2 * d) for x in np.arange(1.5 * d, w - d, 2.2 * d)]
+    yy, xx = np.mgrid[0:h, 0:w].astype(float)
+    image = np.full((h, w), 40.0)
+    image[int(0.6 * d):int(0.9 * d)] = 170.0
+    for (x, y), radius in [(c, d / 2) for c in centres] + [(c, 0.325 * d) for c in small]:
+        rho = np.hypot(xx - x, yy - y)
+        alpha = np.clip(radius - rho + 0.5, 0, 1)
+        shade = 190.0 - 60.0 * (rho / radius) ** 2
+        image = image * (1 - alpha) + shade * alpha
+    image += rng.normal(0, 3, image.shape)
+    return np.clip(image, 0, 255).astype(np.uint8), centres
+
+
+@pytest.mark.parametrize("negative", [False, True], ids=["bright-spheres", "dark-spheres"])
+def test_polarity_learned_and_empty_ground_rejected(negative):
+    """Spheres brighter or darker than their surroundings are found alike; smaller spheres and a stripe are not.
+
+    Without the rim limits the six smaller spheres are taken for spheres of
+    the full size.
+    """
+    d = 26.0
+    image, centres = _disk_scene(d)
+    if negative:
+        image = 255 - image
+    templates = learn_templates(image, d)
+    assert templates.sign == (-1 if negative else 1)
+    assert templates.rim_limits is not None
+    found = detect_particles(image, d, templates=templates)
+    dist, idx = cKDTree(found[:, :2]).query(centres)
+    assert (dist < 0.3 * d).mean() >= 0.98
+    assert np.median(dist) < 0.2
+    assert len(found) <= len(centres)  # nothing in the gaps
+    assert found[:, 1].min() > 3.0 * d  # nor above the bed
+    accept_all = detect_particles(image, d, templates=replace(templates, rim_limits=None))
+    assert (accept_all[:, 1] < 3.0 * d).sum() == 6
+
+
+def test_fit_outlines_takes_more_rays_than_remap_rows():
+    """700 spheres x 48 rays exceed cv2.remap's 32767 rows: sampled in blocks, as when fitted a few at a time."""
+    d = 20.0
+    image, centres = _disk_scene(d, seed=1)
+    smooth = image.astype(np.float32)
+    many = np.tile(centres, (int(np.ceil(700 / len(centres))), 1))[:700]
+    radii = np.full(len(many), d / 2)
+    whole = fit_outlines(smooth, many, radii, d)
+    part = fit_outlines(smooth, many[:50], radii[:50], d)
+    np.testing.assert_allclose(whole.centres[:50], part.centres, atol=1e-9)
+    np.testing.assert_allclose(whole.strength[:50], part.strength, atol=1e-9)
