@@ -34,19 +34,25 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 from sklearn.linear_model import LogisticRegression
-from sklearn.model_selection import StratifiedKFold, cross_val_predict
+from sklearn.model_selection import StratifiedKFold
 from sklearn.pipeline import make_pipeline
 from sklearn.preprocessing import StandardScaler
 
-__all__ = ["FEATURES", "MARGIN", "MaterialClasses", "Separation", "classify_by_ranges",
-           "interface_labels", "learn_classes", "sphere_features"]
+__all__ = ["FEATURES", "MARGIN", "MARGINS", "SMEARS", "MaterialClasses", "Separation", "classify_by_ranges",
+           "interface_labels", "learn_classes", "smeared_features", "sphere_features"]
 
 FEATURES = ("L", "a", "b", "L_spread", "H", "S", "V",
-            "highlight", "highlight_area", "rim", "texture")
+            "highlight", "highlight_area", "rim", "texture", "specular")
 # the features the learned classes use: LAB colour and the gloss / shape cues
 # (not HSV: its hue wraps at red and is noise on grey spheres)
-LEARNED = (0, 1, 2, 3, 7, 8, 9, 10)
-MARGIN = 0.75  # labelled spheres lie this many diameters or more from the initial interface
+LEARNED = (0, 1, 2, 3, 7, 8, 9, 10, 11)
+# Labelled spheres lie this many diameters or more from the initial
+# interface: a packing's rows are not flat, and the interface (1 - c0) H is
+# where the layers' volumes split, not where every sphere does. When c0 is
+# near 0 or 1 one class is a single row, and the margin shrinks (down to
+# zero) until both classes have MIN_PER_CLASS spheres.
+MARGIN = 0.75
+MARGINS = (0.75, 0.5, 0.25, 0.0)
 MIN_PER_CLASS = 5  # fewer labelled spheres of a class than this: cannot learn the classes
 AMBIGUOUS = (0.2, 0.8)  # a sphere whose p_heavy falls in here is ambiguous
 
@@ -68,7 +74,9 @@ def sphere_features(image: np.ndarray, centres: np.ndarray, particle_diameter_px
     highlight between samples counts, minus the median); highlight_area (share
     of the disk samples brighter than half-way from median to brightest); rim
     (median grey level at 0.86 radii minus the middle's); texture (mean absolute
-    high-pass of the grey image over the middle, grey levels).
+    high-pass of the grey image over the middle, grey levels); specular (the
+    largest rise of grey above its surroundings at a tenth of a diameter
+    within 0.86 radii: a sharp highlight, not a broad reflection).
     """
     if len(centres) == 0:
         return np.zeros((0, len(FEATURES)))
@@ -97,9 +105,14 @@ def sphere_features(image: np.ndarray, centres: np.ndarray, particle_diameter_px
     high_pass = np.abs(gray - cv2.GaussianBlur(gray, (0, 0), 1.5))
     texture = cv2.remap(high_pass, px[:, :_MIDDLE], py[:, :_MIDDLE], cv2.INTER_LINEAR,
                         borderMode=cv2.BORDER_REPLICATE).mean(axis=1)
+    # a lamp's image on a glossy sphere is small and sharp; the lamps'
+    # reflections on the wall and the shading are broad: keep only what
+    # stands above its surroundings at a tenth of a diameter
+    top_hat = cv2.dilate(gray - cv2.GaussianBlur(gray, (0, 0), max(1.0, d / 10)), np.ones((3, 3), np.uint8))
+    specular = cv2.remap(top_hat, px, py, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE).max(axis=1)
     hue = _circular_median_hue(hsv[..., 0])
     sv = np.median(hsv[..., 1:], axis=1)
-    return np.column_stack([med, spread, hue, sv, highlight, area, rim, texture])
+    return np.column_stack([med, spread, hue, sv, highlight, area, rim, texture, specular])
 
 
 def _sample_points(centres: np.ndarray, radius: float) -> np.ndarray:
@@ -165,38 +178,69 @@ class MaterialClasses:
         return self.model.predict_proba(np.asarray(features)[:, LEARNED])[:, 1]
 
 
+# Horizontal smears [diameters] the labelled spheres are also learned under.
+# The plate moves ~0.17 m/s: at 1/60 s a sphere next to it smears by half a
+# diameter, while the first frame's heavy spheres, all high up, are sharp. A
+# classifier that has only seen sharp heavy spheres calls blurred ones light
+# (polished steel reaching the bottom layers of an S-POM run: its highlights
+# smear into the body; issue 9). Showing it the labelled spheres smeared as
+# the fast layers are makes the classes hold wherever a sphere is.
+SMEARS = (0.15, 0.3, 0.5)
+
+
+def smeared_features(image: np.ndarray, centres: np.ndarray, particle_diameter_px: float,
+                     smears: tuple[float, ...] = SMEARS) -> list[np.ndarray]:
+    """:func:`sphere_features` of ``image`` box-blurred along x by each of ``smears`` [diameters]."""
+    out = []
+    for smear in smears:
+        k = max(1, int(round(smear * particle_diameter_px)))
+        kernel = np.full((1, k), 1.0 / k, np.float32)
+        blurred = cv2.filter2D(image, -1, kernel, borderType=cv2.BORDER_REPLICATE)
+        out.append(sphere_features(blurred, centres, particle_diameter_px))
+    return out
+
+
 def learn_classes(features: np.ndarray, height: np.ndarray, c0: float, n_layers: int,
-                  seed: int = 0) -> MaterialClasses:
+                  augmented: list[np.ndarray] | tuple = (), seed: int = 0) -> MaterialClasses:
     """Learn heavy and light from the first frame's spheres.
 
     ``features`` (m, len(FEATURES)) and ``height`` [diameters above the bottom
-    wall] of the first frame's spheres; ``c0`` the heavy volume fraction.
-    Raises ValueError if fewer than MIN_PER_CLASS spheres of either class lie
-    clear of the interface.
+    wall] of the first frame's spheres; ``c0`` the heavy volume fraction;
+    ``augmented``: the same spheres' features under other imaging conditions
+    (e.g. :func:`smeared_features`), learned from as well. Raises ValueError
+    if fewer than MIN_PER_CLASS spheres of either class lie clear of the
+    interface.
     """
     x = np.asarray(features, dtype=float)[:, LEARNED]
     h = np.asarray(height, dtype=float)
-    label = interface_labels(h, c0, n_layers)
-    use = label >= 0
-    n_heavy, n_light = int((label == 1).sum()), int((label == 0).sum())
-    if min(n_heavy, n_light) < MIN_PER_CLASS:
+    for margin in MARGINS:
+        label = interface_labels(h, c0, n_layers, margin)
+        n_heavy, n_light = int((label == 1).sum()), int((label == 0).sum())
+        if min(n_heavy, n_light) >= MIN_PER_CLASS:
+            break
+    else:
         raise ValueError(
             f"the first frame shows {n_heavy} spheres above and {n_light} below the initial interface "
-            f"at (1 - c0) H = {(1 - c0) * n_layers:.1f} diameters (more than {MARGIN} d away); "
-            f"need {MIN_PER_CLASS} of each to learn heavy from light (is c0 right? does the "
-            f"recording start stratified?)")
+            f"at (1 - c0) H = {(1 - c0) * n_layers:.1f} diameters; need {MIN_PER_CLASS} of each to "
+            f"learn heavy from light (is c0 right? does the recording start stratified?)")
+    use = label >= 0
     x, y, h = x[use], label[use], h[use]
+    views = [x, *(np.asarray(a, dtype=float)[:, LEARNED][use] for a in augmented)]
 
-    def model():
+    def fit(rows: np.ndarray):
         # Logistic regression: outliers (a shadowed sphere, a highlight off
         # centre) pull a linear boundary less than they pull a Gaussian class,
         # and its probabilities are usable as they come.
-        return make_pipeline(StandardScaler(), LogisticRegression(C=1.0, max_iter=500))
+        model = make_pipeline(StandardScaler(), LogisticRegression(C=1.0, max_iter=1000))
+        return model.fit(np.concatenate([v[rows] for v in views]), np.tile(y[rows], len(views)))
 
+    # cross-validated by sphere: a sphere's smeared copies stay in its fold
     folds = StratifiedKFold(n_splits=min(5, n_heavy, n_light), shuffle=True, random_state=seed)
-    predicted = cross_val_predict(model(), x, y, cv=folds)
+    predicted = np.empty_like(y)
+    for train, test in folds.split(x, y):
+        predicted[test] = fit(train).predict(x[test])
     accuracy = 0.5 * ((predicted[y == 1] == 1).mean() + (predicted[y == 0] == 0).mean())
-    fitted = model().fit(x, y)
+    fitted = fit(np.arange(len(y)))
     score = fitted.decision_function(x)
     return MaterialClasses(fitted, Separation(float(accuracy), _height_share(score, y, h), n_heavy, n_light))
 

@@ -20,6 +20,7 @@ from granseg.measure.classify import (
     MaterialClasses,
     classify_by_ranges,
     learn_classes,
+    smeared_features,
     sphere_features,
 )
 from granseg.measure.detect import Templates, detect_particles, learn_templates
@@ -141,7 +142,7 @@ def analyze(
     fps = _frame_rate(exp, source)
     keep = _preview_indices(len(source), preview_count if preview is not None else 2)
     spheres, crops, bad, names = _detect_all(source, exp, workers, progress, keep)
-    classes = _classify(spheres, exp)
+    classes = _classify(spheres, exp, crops)
     result = _assemble(spheres, exp, fps, smooth, names, bad)
     result.classes = classes
     result.quality = _assess(result)
@@ -188,10 +189,9 @@ class _FrameWorker:
     """
 
     def __init__(self, exp: Experiment, image_size: tuple[int, int]):
-        d = exp.particle_diameter_px
         x0, y0, x1, y1 = exp.window
-        m = int(np.ceil(d))
-        self.crop = (int(np.floor(x0)) - m, int(np.floor(y0)) - m, int(np.ceil(x1)) + m, int(np.ceil(y1)) + m)
+        m = int(np.ceil(exp.particle_diameter_px))
+        self.crop = (*_crop_origin(exp), int(np.ceil(x1)) + m, int(np.ceil(y1)) + m)
         self.exp, self.size = exp, image_size
         self.undistort = Undistorter(exp.camera_matrix, exp.dist_coeffs, image_size, self.crop)
         self.templates: Templates | None = None
@@ -336,22 +336,35 @@ def _check_video_length(source, names, results) -> None:
 # --------------------------------------------------------------------------- pass 2: classes
 
 
-def _classify(spheres: list[FrameSpheres | None], exp: Experiment) -> MaterialClasses | None:
+def _classify(spheres: list[FrameSpheres | None], exp: Experiment,
+              crops: dict[int, np.ndarray]) -> MaterialClasses | None:
     """Give every sphere its class: learned from the first good frame, or by explicit colour ranges."""
     good = [s for s in spheres if s is not None]
     if exp.colour_ranges:
         for s in good:
             s.heavy = classify_by_ranges(s.features, exp.colour_ranges)
         return None
-    first = good[0]
+    i0 = next(i for i, s in enumerate(spheres) if s is not None)
+    first = spheres[i0]
+    augmented = []
+    if i0 in crops:  # the first frame's image: its spheres also learned as if smeared by motion
+        ox, oy = _crop_origin(exp)
+        centres = np.column_stack([first.x - ox, first.y - oy])
+        augmented = smeared_features(crops[i0], centres, exp.particle_diameter_px)
     try:
-        classes = learn_classes(first.features, _heights(first.y, exp), exp.c0, N_LAYERS)
+        classes = learn_classes(first.features, _heights(first.y, exp), exp.c0, N_LAYERS, augmented)
     except ValueError as exc:
         raise ValueError(f"{exp.path.parent}: {exc}") from None
     for s in good:
         s.p_heavy = classes.p_heavy(s.features)
         s.heavy = s.p_heavy > 0.5
     return classes
+
+
+def _crop_origin(exp: Experiment) -> tuple[int, int]:
+    """Top-left corner [px] of the undistorted crop the frames are analysed in: the window and a diameter."""
+    m = int(np.ceil(exp.particle_diameter_px))
+    return int(np.floor(exp.window[0])) - m, int(np.floor(exp.window[1])) - m
 
 
 def _heights(y: np.ndarray, exp: Experiment) -> np.ndarray:

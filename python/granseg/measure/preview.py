@@ -43,6 +43,8 @@ def write_previews(directory: Path, result: Any, crops: dict[int, np.ndarray], f
 def draw_preview(crop: np.ndarray, result: Any, i: int) -> np.ndarray:
     """The undistorted crop of frame ``i`` with spheres circled by class, layer lines and counts."""
     exp = result.experiment
+    from granseg.measure.pipeline import _crop_origin
+
     ox, oy = _crop_origin(exp)
     scale = max(1.0, 700.0 / crop.shape[0])
     img = cv2.resize(crop, None, fx=scale, fy=scale, interpolation=cv2.INTER_LINEAR)
@@ -63,11 +65,6 @@ def draw_preview(crop: np.ndarray, result: Any, i: int) -> np.ndarray:
         cv2.circle(img, to_px(x, y), 2, colour, -1, cv2.LINE_AA)
     body = np.hstack([img, _panel(img.shape[0], result, i, to_px(0, y0)[1], to_px(0, y1)[1])])
     return np.vstack([_header(body.shape[1], result, i), body])
-
-
-def _crop_origin(exp) -> tuple[int, int]:
-    m = int(np.ceil(exp.particle_diameter_px))
-    return int(np.floor(exp.window[0])) - m, int(np.floor(exp.window[1])) - m
 
 
 def _header(width: int, result: Any, i: int) -> np.ndarray:
