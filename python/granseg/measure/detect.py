@@ -43,8 +43,9 @@ SMOOTH_SIGMA_PX = 0.5  # blur of the grey image that detection works on [px]
 # limits: real spheres reach -5 (black beads on a backlight, 1 in 3000 below
 # -4; the synthetic scenes' spheres stay above -4: the score's lower tail
 # is heavier than a normal one's, hence not 3-4); background, gaps, the free
-# surface, 4 mm beads among 6 mm ones and spheres cut by the image border all
-# lie below -10 (synthetic: the lid and walls below -19).
+# surface and 4 mm beads among 6 mm ones all lie below -10 (synthetic: the
+# lid above the bed below -19). Spheres cut by the image border fall from 0
+# to below -10 the more of their rim is outside.
 RIM_SD = 7.0
 MIN_CONFIRMED = 30  # confirmed spheres a group needs for rim limits of its own (median and MAD of fewer are noisy)
 

@@ -108,12 +108,37 @@ def _middle_colours(image: np.ndarray, centres: np.ndarray, d: float) -> np.ndar
 
 
 def _appearance_groups(colour: np.ndarray) -> np.ndarray:
-    """Split spheres into two groups by the colour of their middles (2-means); one group if alike."""
+    """Split spheres into two groups by the colour of their middles (2-means); one group if alike.
+
+    Deterministic: the best split along the colours' principal axis (exact,
+    over every cut of the sorted projections) starts Lloyd's iterations.
+    cv2.kmeans seeds from OpenCV's global random state, so the same frame
+    split differently depending on what ran before; where the colours form
+    one cloud (black beads only) the split, and with it the templates and
+    centres (by up to 0.02 px), changed from run to run.
+    """
+    colour = np.asarray(colour, dtype=float)
     if len(colour) < 4 or np.ptp(colour, axis=0).max() < 1e-3:
         return np.zeros(len(colour), dtype=int)
-    crit = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_MAX_ITER, 30, 0.1)
-    _, labels, _ = cv2.kmeans(colour.astype(np.float32), 2, None, crit, 3, cv2.KMEANS_PP_CENTERS)
-    labels = labels.ravel()
+    centred = colour - colour.mean(axis=0)
+    axis = np.linalg.svd(centred, full_matrices=False)[2][0]
+    proj = centred @ axis
+    order = np.argsort(proj, kind="stable")
+    p = proj[order]
+    n = np.arange(1, len(p))  # size of the lower part for each cut
+    s1, s2 = np.cumsum(p)[:-1], np.cumsum(p * p)[:-1]
+    total, total2 = p.sum(), (p * p).sum()
+    within = (s2 - s1 * s1 / n) + ((total2 - s2) - (total - s1) ** 2 / (len(p) - n))
+    labels = np.zeros(len(p), dtype=int)
+    labels[order[int(np.argmin(within)) + 1:]] = 1
+    for _ in range(30):
+        if min(np.bincount(labels, minlength=2)) == 0:
+            break
+        centres = np.stack([colour[labels == g].mean(axis=0) for g in (0, 1)])
+        new = np.argmin(((colour[:, None, :] - centres[None]) ** 2).sum(axis=2), axis=1)
+        if np.array_equal(new, labels):
+            break
+        labels = new
     if min(np.bincount(labels, minlength=2)) < 3:
         return np.zeros(len(colour), dtype=int)
     return labels
