@@ -1,16 +1,22 @@
 """How well ``granseg analyze`` recovers the renderer's ground truth, scene by scene.
 
-For every scene of ``granseg.synth.SCENES`` and every seed (one random
-packing each): render the mixing map over N frames, analyse them, match the
-detected spheres to the true ones (within 0.3 D) and report recall,
-precision, the raw map's RMSD, the worst layer's count error summed over the
-run, and per material the centre bias and 95th-percentile centre error [px].
-The last line per scene pools the layer counts over all seeds. ``--set
-KEY=VALUE`` overrides a render setting of every scene (e.g. the lamps:
-``--set lighting=diffuse``; VALUE is read as JSON when it parses).
+For every scene (default: the detector's own ``SCENES``; ``--scenes all``
+adds the paper's mixtures, the grey-on-grey pairs and the apparatus looks of
+``MIXTURE_SCENES`` and ``APPARATUS_SCENES``) and every seed (one random
+packing each): render the scene's mixing map over N frames, analyse them,
+match the detected spheres to the true ones (within 0.3 D) and report
+recall, precision, the raw map's RMSD, the per-frame layer-count error (mean
+over frames and layers of |n - n_true| / n_true), the worst layer's count
+error summed over the run, whether the map passed its quality checks, and
+per material the centre bias and 95th-percentile centre error [px]. The last
+line per scene pools the layer counts over all seeds. ``--set KEY=VALUE``
+overrides a render setting of every scene (e.g. the lamps: ``--set
+lighting=diffuse``; VALUE is read as JSON when it parses).
 
     PYTHONPATH=python python benches/bench_measure_accuracy.py --seeds 7 8 9 10 11 12 13 14 \
         --json benches/results/measure_accuracy.json
+    PYTHONPATH=python python benches/bench_measure_accuracy.py --scenes all --seeds 7 8 \
+        --json benches/results/measure_accuracy_all.json
 """
 
 from __future__ import annotations
@@ -19,14 +25,17 @@ import argparse
 import json
 import sys
 import tempfile
+import warnings
 from pathlib import Path
 
 import numpy as np
 from scipy.spatial import cKDTree
 
 from granseg._io import save_json
+from granseg.errors import QualityWarning
 from granseg.measure import analyze
-from granseg.synth import SCENES, mixing_map, render_frames
+from granseg.synth import SCENES
+from granseg.synth.scenes import render_scene, scene_names
 
 
 def score(r, a) -> dict:
@@ -45,9 +54,12 @@ def score(r, a) -> dict:
         back, _ = cKDTree(det).query(truth[truth[:, 4] > 0, :2])
         fn += int((back > 0.3 * d).sum())
     count = np.abs(a.n.sum(axis=0) - r.n.sum(axis=0)) / r.n.sum(axis=0)
+    per_frame = np.abs(a.n - r.n)[r.n > 0] / r.n[r.n > 0]
     out = {"recall": 1 - fn / int(r.n.sum()), "precision": tp / (tp + fp),
            "rmsd": float(np.sqrt(np.nanmean((a.c_raw - r.c_raw) ** 2))),
-           "worst_layer_count_error": float(count.max()), "worst_layer": int(count.argmax())}
+           "frame_layer_count_error": float(per_frame.mean()),
+           "worst_layer_count_error": float(count.max()), "worst_layer": int(count.argmax()),
+           "quality_ok": bool(a.quality.ok), "failed_checks": [c.name for c in a.quality.failed]}
     for name, errs in errors.items():
         e = np.concatenate(errs)
         out[f"{name}_bias_px"] = [round(float(v), 3) for v in e.mean(axis=0)]
@@ -69,24 +81,29 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--seeds", type=int, nargs="+", default=[7, 8, 9, 10])
     ap.add_argument("--frames", type=int, default=6)
-    ap.add_argument("--scenes", nargs="+", default=list(SCENES), choices=list(SCENES))
+    ap.add_argument("--scenes", nargs="+", default=list(SCENES), choices=[*scene_names(), "all"],
+                    help="scene names, or 'all' for every scene of the three groups")
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                     help="override a render_frames setting of every scene")
     ap.add_argument("--json", type=Path, default=None, help="also write the figures here")
     args = ap.parse_args()
     overrides = dict(_setting(item) for item in args.set)
+    scenes = scene_names() if "all" in args.scenes else args.scenes
     results = {}
-    for name in args.scenes:
+    for name in scenes:
         runs, detected, true = {}, 0, 0
         for seed in args.seeds:
             with tempfile.TemporaryDirectory() as tmp:
-                r = render_frames(mixing_map(args.frames), seed=seed, out_dir=Path(tmp),
-                                  **{**SCENES[name], **overrides})
-                a = analyze(Path(tmp), smooth=1, save=False, progress=False, workers=2)
+                r = render_scene(name, args.frames, seed=seed, out_dir=Path(tmp), **overrides)
+                with warnings.catch_warnings():
+                    warnings.simplefilter("ignore", QualityWarning)  # scored below
+                    a = analyze(r.source, smooth=1, save=False, progress=False, workers=2)
             runs[seed] = s = score(r, a)
             detected, true = detected + a.n.sum(axis=0), true + r.n.sum(axis=0)
             print(f"{name:28s} seed {seed:3d}: recall {s['recall']:.3f} precision {s['precision']:.3f} "
-                  f"RMSD {s['rmsd']:.4f} worst layer {s['worst_layer_count_error']:.3f} | bias heavy "
+                  f"RMSD {s['rmsd']:.4f} frame-layer count {s['frame_layer_count_error']:.3f} "
+                  f"worst layer {s['worst_layer_count_error']:.3f} quality "
+                  f"{'ok' if s['quality_ok'] else 'FAILED ' + ','.join(s['failed_checks'])} | bias heavy "
                   f"{s['heavy_bias_px']} light {s['light_bias_px']} px, p95 {s['heavy_p95_px']:.2f} "
                   f"{s['light_p95_px']:.2f} px", flush=True)
         pooled = float((np.abs(detected - true) / true).max())

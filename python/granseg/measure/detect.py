@@ -47,6 +47,13 @@ SMOOTH_SIGMA_PX = 0.5  # blur of the grey image that detection works on [px]
 # lid above the bed below -19). Spheres cut by the image border fall from 0
 # to below -10 the more of their rim is outside.
 RIM_SD = 7.0
+# ... and never less than RIM_FLOOR below it: a factor 8 in sharpness. On
+# rendered looks the first frame's rims are so alike (MAD ~0.1) that 7 MADs
+# is a factor 2, and spheres smeared by the plate's motion (issue 9: half a
+# diameter in one exposure) or blurred by video compression fell below it
+# (recall 0.93-0.95); background, gaps, the free surface and smaller beads
+# score e^5 or more below the spheres, so a factor 8 keeps them out.
+RIM_FLOOR = float(np.log(8.0))
 MIN_CONFIRMED = 30  # confirmed spheres a group needs for rim limits of its own (median and MAD of fewer are noisy)
 
 
@@ -199,7 +206,8 @@ def _examine(smooth: np.ndarray, image: np.ndarray, templates: Templates) -> tup
 
 
 def _rim_limits(rim: np.ndarray, group: np.ndarray, n_groups: int) -> np.ndarray:
-    """Per group, the lowest rim score (:func:`_examine`) of a sphere: RIM_SD robust sd below the median.
+    """Per group, the lowest rim score (:func:`_examine`) of a sphere: RIM_SD robust sd (at least
+    RIM_FLOOR) below the median.
 
     Learned from the confirmed spheres of the first frame (median and MAD,
     robust to the few odd ones among them); a group with fewer than
@@ -208,7 +216,7 @@ def _rim_limits(rim: np.ndarray, group: np.ndarray, n_groups: int) -> np.ndarray
     def limit(x: np.ndarray) -> float:
         x = x[np.isfinite(x)]
         med = float(np.median(x))
-        return med - RIM_SD * 1.4826 * float(np.median(np.abs(x - med)))
+        return med - max(RIM_SD * 1.4826 * float(np.median(np.abs(x - med))), RIM_FLOOR)
 
     pooled = limit(rim)
     return np.array([limit(rim[group == g]) if np.isfinite(rim[group == g]).sum() >= MIN_CONFIRMED else pooled
