@@ -52,6 +52,9 @@ def run(args: argparse.Namespace) -> int:
     wall = result.quality.figures.get("wall_detections_per_frame", 0.0)
     if wall:
         print(f"left out as hemispheres of the lid or plate: {wall:.1f} per frame")
+    glare = result.quality.figures.get("wall_glare_grey_levels", 0.0)
+    if glare >= 10:
+        print(f"lamp reflections on the wall taken off: up to {glare:.0f} grey levels")
     print(f"map written to {result.out} (smoothing_frames = {result.smoothing_frames})")
     if result.detections is not None:
         print(f"detections written to {result.detections}")

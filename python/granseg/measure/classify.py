@@ -88,7 +88,7 @@ def sphere_features(image: np.ndarray, centres: np.ndarray, particle_diameter_px
     px, py = pts[..., 0], pts[..., 1]
     # sample first, convert only the samples (converting whole frames cost 50 ms at D = 80 px)
     bgr = cv2.remap(smooth, px[:, :_MIDDLE], py[:, :_MIDDLE], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-    lab = cv2.cvtColor(bgr, cv2.COLOR_BGR2LAB).astype(np.float32)
+    lab = _lab8(bgr)
     hsv = cv2.cvtColor(bgr, cv2.COLOR_BGR2HSV).astype(np.float32)
     med = np.median(lab, axis=1)
     spread = np.percentile(lab[..., 0], 90, axis=1) - np.percentile(lab[..., 0], 10, axis=1)
@@ -113,6 +113,17 @@ def sphere_features(image: np.ndarray, centres: np.ndarray, particle_diameter_px
     hue = _circular_median_hue(hsv[..., 0])
     sv = np.median(hsv[..., 1:], axis=1)
     return np.column_stack([med, spread, hue, sv, highlight, area, rim, texture, specular])
+
+
+def _lab8(bgr: np.ndarray) -> np.ndarray:
+    """CIE LAB of uint8 BGR samples on OpenCV's 8-bit scales (L x 255/100, a + 128, b + 128), float32.
+
+    Converted in floating point: OpenCV's 8-bit path took 7.5 ms for 3000
+    samples (it builds tables per call), the float path 0.02 ms; they agree
+    within about one level.
+    """
+    lab = cv2.cvtColor(bgr.astype(np.float32) * np.float32(1 / 255), cv2.COLOR_BGR2LAB)
+    return lab * np.float32([255 / 100, 1, 1]) + np.float32([0, 128, 128])
 
 
 def _sample_points(centres: np.ndarray, radius: float) -> np.ndarray:

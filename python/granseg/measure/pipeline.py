@@ -28,6 +28,7 @@ from granseg.measure.experiment import Experiment, load_experiment
 from granseg.measure.layers import N_LAYERS, clear_of_walls, in_window, layer_counts, layer_index
 from granseg.measure.quality import Quality, QualityWarning, assess
 from granseg.measure.sources import BadFrame, FrameDirectory, VideoFrames, open_frames
+from granseg.measure.wall import remove_wall_glare
 
 __all__ = ["Analysis", "BadFrameWarning", "FrameSpheres", "analyze", "write_detections"]
 
@@ -45,7 +46,8 @@ class FrameSpheres:
     x, y, r: centre and radius [undistorted px]; score: correlation with the
     template; features: appearance (classify.FEATURES); heavy, p_heavy: the
     class and its probability (p_heavy None with explicit colour ranges);
-    wall: detections left out as hemispheres of the lid or plate (count).
+    wall: detections left out as hemispheres of the lid or plate (count);
+    glare: the most light the wall's reflections added [grey levels], taken off.
     """
 
     x: np.ndarray
@@ -54,6 +56,7 @@ class FrameSpheres:
     score: np.ndarray
     features: np.ndarray
     wall: int = 0
+    glare: float = 0.0
     heavy: np.ndarray | None = None
     p_heavy: np.ndarray | None = None
 
@@ -201,14 +204,15 @@ class _FrameWorker:
 
     def learn(self, image: np.ndarray) -> None:
         """Learn the spheres' appearances from one frame (kept None if it shows too few spheres)."""
-        self.templates = learn_templates(self.undistort(_bgr(image)), self.exp.particle_diameter_px)
+        crop, _ = remove_wall_glare(self.undistort(_bgr(image)), self.exp.particle_diameter_px)
+        self.templates = learn_templates(crop, self.exp.particle_diameter_px)
 
     def __call__(self, name: str, image: np.ndarray) -> tuple[FrameSpheres, np.ndarray]:
         if (image.shape[1], image.shape[0]) != self.size:
             raise BadFrame(f"{name}: size {image.shape[1]} x {image.shape[0]} differs from the first frame's "
                            f"{self.size[0]} x {self.size[1]}")
-        crop = self.undistort(image)
         d = self.exp.particle_diameter_px
+        crop, glare = remove_wall_glare(self.undistort(image), d)
         found = detect_particles(crop, d, templates=self.templates)
         x, y = found[:, 0] + self.crop[0], found[:, 1] + self.crop[1]
         inside = in_window(x, y, self.exp.window)
@@ -220,7 +224,7 @@ class _FrameWorker:
             raise BadFrame(f"{name}: no spheres detected in the window")
         feats = sphere_features(crop, found[keep, :2], d)
         return FrameSpheres(x[keep], y[keep], found[keep, 2], found[keep, 3], feats,
-                            wall=int((inside & ~clear).sum())), crop
+                            wall=int((inside & ~clear).sum()), glare=glare), crop
 
 
 def _in_thread(source, worker, i: int, image: np.ndarray | None, keep_crop: bool):
@@ -385,6 +389,7 @@ def _assess(result: Analysis) -> Quality:
         separation=result.classes.separation if learned else None,
         n_bad_frames=len(result.bad_frames),
         wall_detections=float(np.mean([s.wall for s in good])),
+        wall_glare=float(max(s.glare for s in good)),
     )
 
 

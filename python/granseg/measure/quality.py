@@ -141,7 +141,8 @@ def _check(name: str, value: float, limit: float, rule: str, about: str) -> Chec
 
 def assess(*, n: np.ndarray, n_heavy: np.ndarray, c0: float, first_heights: np.ndarray,
            first_heavy: np.ndarray, scores: np.ndarray, p_heavy: np.ndarray | None,
-           separation: Any | None, n_bad_frames: int, wall_detections: float) -> Quality:
+           separation: Any | None, n_bad_frames: int, wall_detections: float,
+           wall_glare: float = 0.0) -> Quality:
     """Run every check on one analysed run.
 
     n, n_heavy: (n_t, n_layers) counts (rows of bad frames all zero);
@@ -152,7 +153,8 @@ def assess(*, n: np.ndarray, n_heavy: np.ndarray, c0: float, first_heights: np.n
     explicit colour ranges); separation: the learned classes'
     :class:`~granseg.measure.classify.Separation` (None with colour ranges);
     n_bad_frames: frames without a reading; wall_detections: mean detections
-    per frame left out as hemispheres of the lid or the plate.
+    per frame left out as hemispheres of the lid or the plate; wall_glare:
+    the most light [grey levels] the wall's reflections added (taken off).
     """
     from granseg.measure.classify import AMBIGUOUS, MARGIN, interface_labels
 
@@ -217,6 +219,7 @@ def assess(*, n: np.ndarray, n_heavy: np.ndarray, c0: float, first_heights: np.n
     figures = {
         "spheres_per_frame": float(n[good].sum(axis=1).mean()) if good.any() else 0.0,
         "wall_detections_per_frame": float(wall_detections),
+        "wall_glare_grey_levels": float(wall_glare),
         "first_frame": first,
     }
     if separation is not None:
