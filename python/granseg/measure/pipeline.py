@@ -195,6 +195,7 @@ class _FrameWorker:
         x0, y0, x1, y1 = exp.window
         m = int(np.ceil(exp.particle_diameter_px))
         self.crop = (*_crop_origin(exp), int(np.ceil(x1)) + m, int(np.ceil(y1)) + m)
+        self.bed_rows = (int(np.ceil(y0)) - self.crop[1], int(np.floor(y1)) - self.crop[1])  # in the crop
         self.exp, self.size = exp, image_size
         self.undistort = Undistorter(exp.camera_matrix, exp.dist_coeffs, image_size, self.crop)
         self.templates: Templates | None = None
@@ -204,7 +205,7 @@ class _FrameWorker:
 
     def learn(self, image: np.ndarray) -> None:
         """Learn the spheres' appearances from one frame (kept None if it shows too few spheres)."""
-        crop, _ = remove_wall_glare(self.undistort(_bgr(image)), self.exp.particle_diameter_px)
+        crop, _ = remove_wall_glare(self.undistort(_bgr(image)), self.exp.particle_diameter_px, self.bed_rows)
         self.templates = learn_templates(crop, self.exp.particle_diameter_px)
 
     def __call__(self, name: str, image: np.ndarray) -> tuple[FrameSpheres, np.ndarray]:
@@ -212,7 +213,7 @@ class _FrameWorker:
             raise BadFrame(f"{name}: size {image.shape[1]} x {image.shape[0]} differs from the first frame's "
                            f"{self.size[0]} x {self.size[1]}")
         d = self.exp.particle_diameter_px
-        crop, glare = remove_wall_glare(self.undistort(image), d)
+        crop, glare = remove_wall_glare(self.undistort(image), d, self.bed_rows)
         found = detect_particles(crop, d, templates=self.templates)
         x, y = found[:, 0] + self.crop[0], found[:, 1] + self.crop[1]
         inside = in_window(x, y, self.exp.window)
