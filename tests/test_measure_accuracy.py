@@ -8,7 +8,9 @@ from scipy.spatial import cKDTree
 
 from granseg.errors import QualityWarning
 from granseg.measure import analyze
-from granseg.synth import SCENES, mixing_map, render_frames
+from granseg.measure.layers import WALL_CLEARANCE
+from granseg.synth import APPARATUS_SCENES, MIXTURE_SCENES, SCENES, mixing_map, render_frames
+from granseg.synth.scenes import render_scene
 
 N_T = 6  # frames per run
 
@@ -97,3 +99,47 @@ def test_colour_ranges_override_learning(tmp_path, ranges, inverted):
         assert a.quality.ok
     expected = 1 - r.c_raw if inverted else r.c_raw
     assert np.sqrt(np.nanmean((a.c_raw - expected) ** 2)) < 0.05
+
+
+# The paper's six mixtures, grey-on-grey pairs and the apparatus looks (bumpy
+# lid and plate, motion blur, lamp reflections, dust, wide-angle lens, JPEG
+# and lossy video). The detector was tuned on seeds 7 and 8; seed 9 is held
+# out (BENCHMARKS.md reports seeds 9-12). Targets of issue 9: c_raw RMSD <=
+# 0.03 and, per frame and layer, mean |n - n_true| / n_true <= 3 %.
+NOT_YET = {
+    # a scratch or a speck of dust on the wall over a still matte sphere makes
+    # it look glossy in every frame (seeds 9-12: c_raw RMSD 0.031-0.038)
+    "apparatus-grey-matte-glossy-jpeg": "dust over a still matte sphere reads as gloss",
+    # spheres hanging under the lid's bumps sit exactly on a layer boundary
+    # (14.00 d) and MPEG-4 blurs the polished steel's outline by a few tenths
+    # of a pixel either way (seeds 9-12: c_raw RMSD 0.021-0.036, per-frame
+    # layer counts 3.2-6.7 %)
+    "apparatus-S-POM-25-mp4v": "spheres on a layer boundary under the lid's bumps, MPEG-4",
+}
+
+
+@pytest.mark.parametrize("name", [
+    pytest.param(n, marks=pytest.mark.xfail(strict=True, reason=NOT_YET[n])) if n in NOT_YET else n
+    for n in [*MIXTURE_SCENES, *APPARATUS_SCENES]])
+def test_mixtures_and_apparatus_looks(tmp_path, name):
+    if "h264" in name:
+        pytest.importorskip("av", reason="H.264 footage needs PyAV (the test extra installs it)")
+    r = render_scene(name, N_T, seed=9, out_dir=tmp_path)
+    a = analyze(r.source, smooth=1, save=False, progress=False, workers=2)
+    assert a.quality.ok, a.quality.report()
+    rmsd = float(np.sqrt(np.nanmean((a.c_raw - r.c_raw) ** 2)))
+    count = float(np.mean(np.abs(a.n - r.n)[r.n > 0] / r.n[r.n > 0]))
+    assert rmsd <= 0.03 and count <= 0.03, f"c_raw RMSD {rmsd:.3f}, per-frame layer count error {count:.3f}"
+
+
+def test_hemispheres_of_lid_and_plate_are_not_counted(tmp_path):
+    """The bumps are seen and left out: no sphere counted on a wall line, the wall layers' counts right."""
+    r = render_scene("bumps-S-PP", N_T, seed=9, out_dir=tmp_path)
+    a = analyze(r.source, smooth=1, save=False, progress=False, workers=2)
+    d = r.experiment["particle_diameter_px"]
+    _, y0, _, y1 = r.experiment["window"]
+    assert a.quality.figures["wall_detections_per_frame"] >= 1.0  # the bumps were found ...
+    for s in a.spheres:  # ... and none was counted
+        assert np.all((s.y - y0 >= WALL_CLEARANCE * d) & (y1 - s.y >= WALL_CLEARANCE * d))
+    for j in (0, 14):  # the layers against the plate and the lid: right within a sphere in every frame
+        assert np.abs(a.n[:, j] - r.n[:, j]).max() <= 1, (j, a.n[:, j], r.n[:, j])
