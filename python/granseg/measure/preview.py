@@ -68,8 +68,10 @@ def draw_preview(crop: np.ndarray, result: Any, i: int) -> np.ndarray:
 
 
 def _header(width: int, result: Any, i: int) -> np.ndarray:
-    """Band above the image: frame name, time, total count, class legend (clear of the layer labels)."""
-    band = np.full((HEADER_PX, width, 3), 250, np.uint8)
+    """Band above the image: frame name, time, total count, class legend; a failed quality check below."""
+    q = getattr(result, "quality", None)
+    failed = q is not None and not q.ok
+    band = np.full((HEADER_PX + (24 if failed else 0), width, 3), 250, np.uint8)
     font = cv2.FONT_HERSHEY_SIMPLEX
     dark = (30, 30, 30)
     cv2.putText(band, f"{result.frame_names[i]}   t = {result.t[i]:.1f} s   n = {int(result.n[i].sum())}",
@@ -79,10 +81,12 @@ def _header(width: int, result: Any, i: int) -> np.ndarray:
     cv2.putText(band, "ambiguous", (130, 44), font, 0.45, AMBIGUOUS_BGR, 2, cv2.LINE_AA)
     cv2.putText(band, f"{result.experiment.heavy} / {result.experiment.light}", (240, 44), font, 0.45, dark,
                 1, cv2.LINE_AA)
-    q = getattr(result, "quality", None)
-    if q is not None and not q.ok:
+    if failed:
         text = "QUALITY FAILED: " + ", ".join(c.name for c in q.failed)
-        cv2.putText(band, text, (max(8, width - 9 * len(text) - 8), 20), font, 0.5, FAIL_BGR, 2, cv2.LINE_AA)
+        room = max(10, (width - 16) // 8)  # about 8 px a character at this size
+        if len(text) > room:
+            text = text[:room - 3] + "..."
+        cv2.putText(band, text, (8, HEADER_PX + 12), font, 0.45, FAIL_BGR, 1, cv2.LINE_AA)
     return band
 
 
