@@ -84,8 +84,9 @@ def _frames(m: Any, out: Path, force: bool) -> None:
                   force=force, progress=False)
     rmsd = float(np.sqrt(np.nanmean((np.asarray(res.c_raw, dtype=float) - rf.c_raw) ** 2)))
     _say("frames", f"rendered {len(c)} SYNTHETIC frames of {m.name} into {folder} and measured them "
-                   f"back: RMSD {rmsd:.3f} against the true per-frame counts "
-                   f"({time.perf_counter() - t0:.0f} s)")
+                   f"back: RMSD {rmsd:.3f} against the true per-frame counts; quality checks "
+                   + ("passed" if res.quality.ok else "FAILED: " + ", ".join(c.name for c in res.quality.failed))
+                   + f" ({time.perf_counter() - t0:.0f} s)")
 
 
 def run(args: argparse.Namespace) -> int:
