@@ -21,6 +21,19 @@ The checks lean on what every run must show:
 - the heavy share summed over depth is conserved: the run's last frames show
   c0 as the first did, within the counting noise.
 
+The record (the map's ``quality`` key, JSON text)::
+
+    {"version": 1, "ok": false,
+     "checks": {"class_separation": {"value": 0.526, "limit": 0.95, "rule": ">=",
+                                     "passed": false, "about": "cross-validated accuracy ..."},
+                ...},
+     "figures": {"spheres_per_frame": 135.4, "wall_detections_per_frame": 0.0,
+                 "wall_glare_grey_levels": 0.0, "first_frame": 0,
+                 "labelled_heavy": 54, "labelled_light": 64}}
+
+``value rule limit`` holds for a check that passed; a value that could not be
+computed is null and fails. ``figures`` are for the record, not judged.
+
 Limits are set wide enough that every look of the test renderers passes with
 the detector working, and a single broken step (classes swapped or merged,
 a bad window, missed spheres) fails at least one; the reasons are beside
