@@ -897,24 +897,12 @@ def _sensor(img: np.ndarray, vignetting: float, noise: float, jpeg_quality: int 
 
 
 def _experiment(heavy, light, cmap, k_mat, dist, win, d, fps, extra) -> dict[str, Any]:
-    from granseg.synth.frames import _densities
+    """The 2-D renderer's experiment.json, named as a PBR look and with DATA.md's material spellings."""
+    from granseg.synth.frames import _experiment as experiment
 
-    rho = _densities(heavy, light)
     names = {"pom": "POM", "pp": "PP"}  # as DATA.md spells them
-    meta = {
-        "name": f"pbr-{heavy}-{light}",
-        "heavy": names.get(heavy, heavy), "light": names.get(light, light),
-        "rho_h": rho[0], "rho_l": rho[1],
-        "c0": float(np.clip(cmap[0].mean(), 0.01, 0.99)),
-        "M_g": 2.0, "M_w": 1.093,
-        "fps": float(fps),
-        "camera_matrix": np.asarray(k_mat).tolist(),
-        "dist_coeffs": np.asarray(dist).tolist(),
-        "window": [float(v) for v in win],
-        "particle_diameter_px": float(d),
-    }
-    meta.update(extra or {})
-    return meta
+    base = {"name": f"pbr-{heavy}-{light}", "heavy": names.get(heavy, heavy), "light": names.get(light, light)}
+    return experiment(heavy, light, cmap, k_mat, dist, win, d, fps, {**base, **(extra or {})})
 
 
 # --------------------------------------------------------------------------- files

@@ -1,0 +1,75 @@
+"""The frame pipeline on footage from a second, physically based renderer it was not tuned on.
+
+The fixtures (tests/fixtures/pbr, rendered once by ``python -m granseg.synth.pbr
+fixtures``) are path-traced: real sphere materials behind the curved PMMA wall,
+LED panels mirrored in it, bumpy lid and plate, lens distortion, JPEG. Nothing
+in the detector or the classifier was tuned on them. Two promises are tested
+apart: a map that passes its own quality checks meets the targets of issue 9
+(c_raw RMSD <= 0.03, per-frame layer counts within 3 %); and which looks meet
+those targets today, so that a change that fixes or breaks one shows.
+"""
+
+from __future__ import annotations
+
+import warnings
+from functools import cache
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from granseg.errors import QualityWarning
+from granseg.measure import analyze
+from granseg.synth.pbr import load_fixture
+
+PBR = Path(__file__).parent / "fixtures" / "pbr"
+LOOKS = sorted(p.name for p in PBR.iterdir() if (p / "truth.npz").is_file())
+
+# Looks whose map misses a target today, and why (BENCHMARKS.md, "Footage it
+# was not tuned on"). All but pom-pp are flagged by their quality checks.
+MISSED = {
+    "glass-pom": "transparent glass among dark POM does not look like glass among glass: half the glass "
+                 "spheres of the mixed frames are not found",
+    "glass-pp": "as glass-pom",
+    "steel-pp": "mirror-like steel over blue PP: centres placed off the spheres",
+    "grey-glossy-matte": "gloss alone, under the panels' glare: some spheres ambiguous",
+    # not flagged: spheres whose centre lies within a few pixels of the window's
+    # sides are found a fraction of a pixel outside it (the curved wall widens
+    # them there), and a layer loses one
+    "pom-pp": "spheres on the window's sides found just outside it (not flagged)",
+    "steel-pom": "spheres on the window's sides found just outside it (not flagged)",
+}
+SILENT = ("pom-pp", "steel-pom")
+
+
+@cache
+def _measured(look: str):
+    truth = load_fixture(PBR / look)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", QualityWarning)  # judged below
+        a = analyze(PBR / look, smooth=1, save=False, progress=False, workers=2)
+    rmsd = float(np.sqrt(np.nanmean((a.c_raw - truth.c_raw) ** 2)))
+    count = float(np.mean(np.abs(a.n - truth.n)[truth.n > 0] / truth.n[truth.n > 0]))
+    return a, rmsd, count
+
+
+def test_every_look_is_here():
+    assert len(LOOKS) >= 7, LOOKS
+
+
+@pytest.mark.parametrize("look", [
+    pytest.param(look, marks=pytest.mark.xfail(strict=True, reason=MISSED[look])) if look in SILENT else look
+    for look in LOOKS])
+def test_a_map_that_passes_its_checks_is_right(look):
+    a, rmsd, count = _measured(look)
+    right = rmsd <= 0.03 and count <= 0.03
+    assert right or not a.quality.ok, f"unflagged map off: c_raw RMSD {rmsd:.3f}, per-frame counts {count:.3f}"
+
+
+@pytest.mark.parametrize("look", [
+    pytest.param(look, marks=pytest.mark.xfail(strict=True, reason=MISSED[look])) if look in MISSED else look
+    for look in LOOKS])
+def test_look_meets_the_targets(look):
+    a, rmsd, count = _measured(look)
+    assert a.quality.ok, a.quality.report()
+    assert rmsd <= 0.03 and count <= 0.03, f"c_raw RMSD {rmsd:.3f}, per-frame layer counts {count:.3f}"
