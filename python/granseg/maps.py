@@ -34,6 +34,7 @@ from typing import Any
 import numpy as np
 
 from granseg._io import save_npz
+from granseg.errors import FlaggedMapError, QualityWarning
 
 __all__ = [
     "Map",
@@ -459,8 +460,6 @@ def load_map(path: str | os.PathLike) -> Map:
     extra = {k: v for k, v in raw.items() if k not in REQUIRED and k not in OPTIONAL}
     m = Map(**clean, path=p, extra=extra)
     if m.failed_checks:
-        from granseg.errors import QualityWarning
-
         warnings.warn(f"{p}: this map failed its frame-analysis quality checks: {', '.join(m.failed_checks)}",
                       QualityWarning, stacklevel=2)
     return m
@@ -473,8 +472,6 @@ def check_accepted(maps: Iterator[Map] | list[Map], accept_flagged: bool) -> Non
     """
     flagged = [m for m in maps if m.failed_checks]
     if flagged and not accept_flagged:
-        from granseg.errors import FlaggedMapError
-
         names = "; ".join(f"{m.path or m.name}: {', '.join(m.failed_checks)}" for m in flagged)
         raise FlaggedMapError(f"{len(flagged)} map(s) failed their frame-analysis quality checks ({names}); "
                               "look at the analysis preview, fix the cause, or accept them explicitly "

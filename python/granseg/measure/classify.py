@@ -57,8 +57,8 @@ MIN_PER_CLASS = 5  # fewer labelled spheres of a class than this: cannot learn t
 AMBIGUOUS = (0.2, 0.8)  # a sphere whose p_heavy falls in here is ambiguous
 
 # Sample circles (radius / sphere radius, points). The middle three give the
-# colour (as the colour features always did); all inside DISK give the gloss
-# cues; RIM_RING is where a matte sphere darkens.
+# colour (as the colour features always did); all of them give the gloss
+# cues; the outermost (_RIM) is where a matte sphere darkens.
 _RINGS = ((0.0, 1), (0.22, 6), (0.42, 10), (0.58, 14), (0.72, 18), (0.86, 24))
 _MIDDLE = 17  # the first 1 + 6 + 10 samples lie in the middle
 _RIM = slice(1 + 6 + 10 + 14 + 18, None)
@@ -70,7 +70,7 @@ def sphere_features(image: np.ndarray, centres: np.ndarray, particle_diameter_px
     ``image`` is BGR (or grey) uint8, ``centres`` (m, 2) x, y [px]. Columns:
     median L, a, b of the middle (OpenCV 8-bit LAB); L spread (p90 - p10) of
     the middle; median H, S, V of the middle (H in 0-179); highlight (the
-    brightest L within 0.86 radii, from a max-filtered copy so that a small
+    brightest grey level within 0.86 radii, from a max-filtered copy so that a small
     highlight between samples counts, minus the median); highlight_area (share
     of the disk samples brighter than half-way from median to brightest); rim
     (median grey level at 0.86 radii minus the middle's); texture (mean absolute
@@ -92,12 +92,13 @@ def sphere_features(image: np.ndarray, centres: np.ndarray, particle_diameter_px
     hsv = cv2.cvtColor(bgr, cv2.COLOR_BGR2HSV).astype(np.float32)
     med = np.median(lab, axis=1)
     spread = np.percentile(lab[..., 0], 90, axis=1) - np.percentile(lab[..., 0], 10, axis=1)
-    # the gloss cues on one grey scale
+    # the gloss cues on one grey scale; the grey of the blurred colour frame
+    # is the blurred grey (both are linear), so no second blur
     gray = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY).astype(np.float32)
-    lum = cv2.remap(cv2.GaussianBlur(gray, (0, 0), max(0.7, d / 40)), px, py, cv2.INTER_LINEAR,
-                    borderMode=cv2.BORDER_REPLICATE)
+    soft = cv2.cvtColor(smooth, cv2.COLOR_BGR2GRAY).astype(np.float32)
+    lum = cv2.remap(soft, px, py, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
     middle = np.median(lum[:, :_MIDDLE], axis=1)
-    peak = cv2.dilate(cv2.GaussianBlur(gray, (0, 0), 0.7), np.ones((3, 3), np.uint8))
+    peak = cv2.dilate(soft, np.ones((3, 3), np.uint8))
     brightest = cv2.remap(peak, px, py, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE).max(axis=1)
     highlight = np.maximum(brightest - middle, 0.0)
     area = (lum > (middle + 0.5 * highlight)[:, None]).mean(axis=1) * (highlight > 2.0)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["N_LAYERS", "WALL_CLEARANCE", "clear_of_walls", "in_window", "layer_index", "layer_counts"]
+__all__ = ["N_LAYERS", "WALL_CLEARANCE", "clear_of_walls", "height", "in_window", "layer_index", "layer_counts"]
 
 N_LAYERS = 15
 # A free sphere's centre lies at least half a diameter from the lid and the
@@ -35,11 +35,15 @@ def clear_of_walls(y: np.ndarray, window: tuple[float, float, float, float], par
     return (y >= y0 + gap) & (y <= y1 - gap)
 
 
+def height(y: np.ndarray, window: tuple[float, float, float, float], n_layers: int = N_LAYERS) -> np.ndarray:
+    """Height of centres y [undistorted px] above the bottom wall (y1), in layer heights (diameters)."""
+    _, y0, _, y1 = window
+    return (y1 - np.asarray(y, dtype=float)) / ((y1 - y0) / n_layers)
+
+
 def layer_index(y: np.ndarray, window: tuple[float, float, float, float], n_layers: int = N_LAYERS) -> np.ndarray:
     """Layer of each centre height y [px]: 0 for the bottom layer (next to y1), n_layers - 1 under the lid."""
-    _, y0, _, y1 = window
-    j = np.floor((y1 - np.asarray(y, dtype=float)) / ((y1 - y0) / n_layers)).astype(int)
-    return np.clip(j, 0, n_layers - 1)
+    return np.clip(np.floor(height(y, window, n_layers)).astype(int), 0, n_layers - 1)
 
 
 def layer_counts(x: np.ndarray, y: np.ndarray, heavy: np.ndarray,

@@ -25,7 +25,14 @@ from granseg.measure.classify import (
 )
 from granseg.measure.detect import Templates, detect_particles, learn_templates
 from granseg.measure.experiment import Experiment, load_experiment
-from granseg.measure.layers import N_LAYERS, clear_of_walls, in_window, layer_counts, layer_index
+from granseg.measure.layers import (
+    N_LAYERS,
+    clear_of_walls,
+    height,
+    in_window,
+    layer_counts,
+    layer_index,
+)
 from granseg.measure.quality import Quality, QualityWarning, assess
 from granseg.measure.sources import BadFrame, FrameDirectory, VideoFrames, open_frames
 from granseg.measure.wall import remove_wall_glare
@@ -357,7 +364,7 @@ def _classify(spheres: list[FrameSpheres | None], exp: Experiment,
         centres = np.column_stack([first.x - ox, first.y - oy])
         augmented = smeared_features(crops[i0], centres, exp.particle_diameter_px)
     try:
-        classes = learn_classes(first.features, _heights(first.y, exp), exp.c0, N_LAYERS, augmented)
+        classes = learn_classes(first.features, height(first.y, exp.window), exp.c0, N_LAYERS, augmented)
     except ValueError as exc:
         raise ValueError(f"{exp.path.parent}: {exc}") from None
     for s in good:
@@ -372,19 +379,13 @@ def _crop_origin(exp: Experiment) -> tuple[int, int]:
     return int(np.floor(exp.window[0])) - m, int(np.floor(exp.window[1])) - m
 
 
-def _heights(y: np.ndarray, exp: Experiment) -> np.ndarray:
-    """Height of centres y [undistorted px] above the bottom wall, in diameters (window = N_LAYERS d)."""
-    _, y0, _, y1 = exp.window
-    return (y1 - np.asarray(y, dtype=float)) / ((y1 - y0) / N_LAYERS)
-
-
 def _assess(result: Analysis) -> Quality:
     good = [s for s in result.spheres if s is not None]
     first = good[0]
     learned = result.classes is not None
     return assess(
         n=result.n, n_heavy=result.n_heavy, c0=result.experiment.c0,
-        first_heights=_heights(first.y, result.experiment), first_heavy=first.heavy,
+        first_heights=height(first.y, result.experiment.window), first_heavy=first.heavy,
         scores=np.concatenate([s.score for s in good]),
         p_heavy=np.concatenate([s.p_heavy for s in good]) if learned else None,
         separation=result.classes.separation if learned else None,

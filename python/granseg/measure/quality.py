@@ -49,6 +49,7 @@ from typing import Any
 import numpy as np
 
 from granseg.errors import QualityWarning
+from granseg.measure.classify import AMBIGUOUS, MARGIN, interface_labels
 
 __all__ = ["Check", "Quality", "QualityWarning", "assess"]
 
@@ -169,8 +170,6 @@ def assess(*, n: np.ndarray, n_heavy: np.ndarray, c0: float, first_heights: np.n
     per frame left out as hemispheres of the lid or the plate; wall_glare:
     the most light [grey levels] the wall's reflections added (taken off).
     """
-    from granseg.measure.classify import AMBIGUOUS, MARGIN, interface_labels
-
     n_t, n_layers = n.shape
     good = n.sum(axis=1) > 0
     checks: list[Check] = []
