@@ -95,7 +95,7 @@ def _polarity(image: np.ndarray, candidates: dict[int, np.ndarray], d: float) ->
     s with the largest s x contrast wins: no threshold, and a margin of at
     least 85 grey levels on all seven.
     """
-    blur = _smooth(image, d)
+    blur = _smooth(image, d)  # inverted below for sign -1, as _smooth would
     half = int(np.ceil(0.75 * d))
     size = 2 * half + 1
     yy, xx = np.mgrid[0:size, 0:size] - half
@@ -105,7 +105,7 @@ def _polarity(image: np.ndarray, candidates: dict[int, np.ndarray], d: float) ->
     for sign in (1, -1):
         if len(candidates[sign]) == 0:
             continue
-        seeds = _select(refine_circles(_smooth(image, d, sign), candidates[sign], d), d)
+        seeds = _select(refine_circles(blur if sign > 0 else 255.0 - blur, candidates[sign], d), d)
         if len(seeds) < 3:
             continue
         mean = np.mean([cv2.getRectSubPix(blur, (size, size), (float(x), float(y))) for x, y in seeds[:, :2]],
