@@ -1,5 +1,6 @@
 //! Criterion benchmarks of the numerical core (no Python):
 //!   cargo bench --bench solver
+//! (add `--features pressure-coupled` for the faer pressure-coupled run)
 //! Figures are recorded in BENCHMARKS.md.
 
 use std::hint::black_box;
@@ -7,6 +8,7 @@ use std::sync::Arc;
 
 use _core::flux::Operator;
 use _core::model::initial_condition;
+#[cfg(feature = "pressure-coupled")]
 use _core::pressure_coupled;
 use _core::sweep::{sweep, RunSpec};
 use _core::{simulate, Params, Tolerances};
@@ -75,6 +77,7 @@ fn bench_single_run(c: &mut Criterion) {
     c.bench_function("gpp_3600s_no_outputs_180_cells", |b| {
         b.iter(|| simulate(black_box(&p), 180, &t_end, tol).unwrap())
     });
+    #[cfg(feature = "pressure-coupled")]
     c.bench_function("gpp_3600s_pressure_coupled_faer_180_cells", |b| {
         b.iter(|| pressure_coupled::simulate(black_box(&p), 180, &t_end, tol).unwrap())
     });

@@ -1,5 +1,5 @@
 //! Solver counters with the two Newton matrices on the benchmark case:
-//!   cargo run --release --example newton_matrices
+//!   cargo run --release --features pressure-coupled --example newton_matrices
 use _core::{pressure_coupled, simulate, Params, Tolerances};
 
 fn main() {

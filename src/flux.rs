@@ -143,6 +143,7 @@ impl Operator {
 
     /// d a / d P at every face for the state of the last `rhs` call (only
     /// the pressure-coupled Jacobian needs it, so it is off the hot path).
+    #[cfg(feature = "pressure-coupled")]
     pub fn seg_coefficient_pressure_derivatives(&self, c: &[f64], out: &mut [f64]) {
         for (f, o) in out.iter_mut().enumerate() {
             let rho = self.p.rho_m(0.5 * (c[f] + c[f + 1]));

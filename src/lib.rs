@@ -2,12 +2,15 @@
 //! its implicit adaptive stepper, the direct steady-state solve and the
 //! parallel sweep. Pure Rust; the PyO3 layer lives in `bindings.rs` behind
 //! the `python` feature, so `cargo test` and `cargo bench` need no Python.
+//! The pressure-coupled Newton matrix (`pressure_coupled`, faer's sparse LU)
+//! is behind the `pressure-coupled` feature: the bindings do not use it.
 
 pub mod error;
 pub mod flux;
 pub mod layers;
 pub mod model;
 pub mod params;
+#[cfg(feature = "pressure-coupled")]
 pub mod pressure_coupled;
 pub mod steady;
 pub mod stepper;

@@ -11,7 +11,8 @@
 //! `flux::Operator` (upwind + diffusion part). The overburden pressure is kept
 //! *implicit in the residual* but left out of the Jacobian: carrying the face
 //! pressures as extra unknowns (an exact, banded Jacobian factorised with
-//! faer's sparse LU, `pressure_coupled.rs`) reaches the same converged
+//! faer's sparse LU, `pressure_coupled.rs`, behind the `pressure-coupled`
+//! cargo feature) reaches the same converged
 //! solution but costs more per step than the Newton iterations it saves
 //! (measured in `benches/solver.rs`, recorded in BENCHMARKS.md), so the fast
 //! path lags only the Jacobian, never P itself.
