@@ -139,6 +139,15 @@ def test_a_rust_panic_becomes_a_python_exception():
         _core._panic_for_testing()
 
 
+def test_the_cores_solver_error_reaches_users_as_granseg_solver_error():
+    from granseg import _core, model
+
+    with pytest.raises(granseg.SolverError, match="panic") as info:
+        model._call(_core._panic_for_testing)
+    assert not isinstance(info.value, _core.SolverError)
+    assert info.value.__cause__ is None
+
+
 def test_solver_error_is_a_granseg_runtime_error():
     assert issubclass(granseg.SolverError, RuntimeError)
     assert issubclass(granseg.SolverError, granseg.GransegError)

@@ -33,3 +33,36 @@ def test_public_names_survive_importing_every_submodule():
 def test_every_public_name_is_listed():
     assert set(granseg._LAZY) <= set(granseg.__all__)
     assert set(dir(granseg)) == set(granseg.__all__)
+
+
+def test_every_granseg_error_derives_from_granseg_error():
+    from granseg import _io, errors, maps
+    from granseg.measure import sources
+
+    classes = [getattr(errors, name) for name in errors.__all__]
+    exceptions = [c for c in classes if issubclass(c, BaseException) and not issubclass(c, Warning)]
+    assert {c.__name__ for c in exceptions} >= {
+        "SolverError", "FitError", "FlaggedMapError", "MapFormatError", "OutputExistsError", "BadFrame"}
+    for cls in exceptions:
+        assert issubclass(cls, errors.GransegError), cls
+    # re-exported where they were first defined, as the same classes
+    assert maps.MapFormatError is errors.MapFormatError
+    assert _io.OutputExistsError is errors.OutputExistsError
+    assert sources.BadFrame is errors.BadFrame
+    assert granseg.SolverError is errors.SolverError
+    # and each keeps the built-in base a user would catch without knowing granseg
+    assert issubclass(errors.MapFormatError, ValueError)
+    assert issubclass(errors.FlaggedMapError, ValueError)
+    assert issubclass(errors.BadFrame, ValueError)
+    assert issubclass(errors.OutputExistsError, FileExistsError)
+    assert issubclass(errors.SolverError, RuntimeError)
+
+
+def test_every_exception_class_in_the_package_derives_from_granseg_error():
+    for info in pkgutil.walk_packages(granseg.__path__, prefix="granseg."):
+        module = importlib.import_module(info.name)
+        for name, value in vars(module).items():
+            if (inspect.isclass(value) and issubclass(value, Exception)
+                    and not issubclass(value, Warning) and value.__module__.startswith("granseg.")):
+                # (the core's own _core.SolverError has module "_core": granseg.model re-raises it)
+                assert issubclass(value, granseg.GransegError), f"{info.name}.{name}"

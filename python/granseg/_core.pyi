@@ -5,11 +5,30 @@ SI units throughout. Parameter dicts map MODEL.md names (see ``defaults()``)
 to floats; missing names take their defaults.
 """
 
+from typing import TypedDict
+
 import numpy as np
 import numpy.typing as npt
 
 class SolverError(RuntimeError):
-    """The numerical core could not complete a solve."""
+    """The numerical core could not complete a solve.
+
+    Internal: ``granseg.model`` re-raises it as ``granseg.errors.SolverError``
+    (a ``GransegError`` and a ``RuntimeError``), the only one users see.
+    """
+
+class SolverStats(TypedDict):
+    """Counters of one run (``stepper::Stats``, converted in ``bindings.rs``)."""
+
+    steps: int
+    rejected: int
+    newton_iters: int
+    newton_failures: int
+    rhs_evals: int
+    jacobians: int
+    clipped: int
+    max_clip: float
+    """Largest amount of c clipped from one cell (states and outputs)."""
 
 def defaults() -> dict[str, float]:
     """Default value of every model parameter (MODEL.md), SI units."""
@@ -37,7 +56,7 @@ def simulate(
     n_cells: int,
     rtol: float,
     atol: float,
-) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64], dict[str, int]]:
+) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64], SolverStats]:
     """One run: (z (n_cells,), c (n_t, n_cells), solver stats). GIL released."""
 
 def steady_state(
@@ -60,8 +79,8 @@ def sweep(
     rtol: float,
     atol: float,
     threads: int | None = None,
-) -> tuple[list[npt.NDArray[np.float64]], npt.NDArray[np.float64], list[dict[str, int]]]:
+) -> tuple[list[npt.NDArray[np.float64]], npt.NDArray[np.float64], list[SolverStats]]:
     """Runs in parallel (rayon, GIL released): (layers per run, RMSD per run, stats)."""
 
 def _panic_for_testing() -> None:
-    """Test hook: a deliberate panic inside the core, raised as SolverError."""
+    """Test hook: a deliberate panic inside the core, raised as _core.SolverError."""

@@ -18,6 +18,8 @@ from typing import Any
 
 import numpy as np
 
+from granseg.errors import OutputExistsError
+
 __all__ = [
     "OutputExistsError",
     "atomic_write",
@@ -26,10 +28,6 @@ __all__ = [
     "save_json",
     "save_npz",
 ]
-
-
-class OutputExistsError(FileExistsError):
-    """Raised when an output file exists and overwriting was not asked for."""
 
 
 def check_writable(path: str | os.PathLike, force: bool = False) -> Path:

@@ -1,8 +1,24 @@
-"""Exceptions granseg raises besides ValueError / FileNotFoundError."""
+"""Every exception granseg raises of its own, all under :class:`GransegError`.
+
+Each also keeps the built-in base a user would catch without knowing granseg
+(``MapFormatError`` is a ``ValueError``, ``OutputExistsError`` a
+``FileExistsError``), so ``except GransegError`` catches every granseg error
+and ``except ValueError`` still catches bad input. Plain ``ValueError`` /
+``FileNotFoundError`` are raised as they are for bad arguments and missing files.
+"""
 
 from __future__ import annotations
 
-__all__ = ["GransegError", "SolverError", "FitError", "FlaggedMapError", "QualityWarning"]
+__all__ = [
+    "GransegError",
+    "SolverError",
+    "FitError",
+    "FlaggedMapError",
+    "MapFormatError",
+    "OutputExistsError",
+    "BadFrame",
+    "QualityWarning",
+]
 
 
 class GransegError(Exception):
@@ -10,7 +26,11 @@ class GransegError(Exception):
 
 
 class SolverError(GransegError, RuntimeError):
-    """The time stepper could not continue (Newton failed even at tiny steps)."""
+    """The time stepper could not continue (Newton failed even at tiny steps).
+
+    The only solver exception users see: :mod:`granseg.model` re-raises the
+    compiled core's internal ``_core.SolverError`` as this class.
+    """
 
 
 class FitError(GransegError):
@@ -19,6 +39,22 @@ class FitError(GransegError):
 
 class FlaggedMapError(GransegError, ValueError):
     """A map failed its frame-analysis quality checks and was not accepted (names map and checks)."""
+
+
+class MapFormatError(GransegError, ValueError):
+    """A map file or map data break the DATA.md format (names file and field)."""
+
+
+class OutputExistsError(GransegError, FileExistsError):
+    """An output file exists and overwriting was not asked for (``force=True``, CLI ``--force``)."""
+
+
+class BadFrame(GransegError, ValueError):
+    """One frame cannot be used (unreadable, truncated, wrong size, no spheres).
+
+    Raised by the frame sources (``FrameDirectory.read``) and the per-frame
+    steps; ``analyze`` turns it into a NaN map row with a ``BadFrameWarning``.
+    """
 
 
 class QualityWarning(UserWarning):

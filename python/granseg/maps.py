@@ -34,7 +34,7 @@ from typing import Any
 import numpy as np
 
 from granseg._io import save_npz
-from granseg.errors import FlaggedMapError, QualityWarning
+from granseg.errors import FlaggedMapError, MapFormatError, QualityWarning
 
 __all__ = [
     "Map",
@@ -49,10 +49,6 @@ __all__ = [
 
 REQUIRED = ("c", "t", "z", "name", "heavy", "light", "rho_h", "rho_l", "c0", "M_g", "M_w")
 OPTIONAL = ("n", "n_heavy", "c_raw", "fps", "smoothing_frames", "quality")
-
-
-class MapFormatError(ValueError):
-    """A map file or map data break the DATA.md format (names file and field)."""
 
 
 # --------------------------------------------------------------------------- smoothing

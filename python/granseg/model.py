@@ -104,7 +104,11 @@ def _solver_options(n_cells: Any, rtol: float | None, atol: float | None) -> tup
 
 
 def _call(fn, *args, **kwargs):
-    """Call the core, re-raising its numerical failures as SolverError."""
+    """Call the core, re-raising its numerical failures as granseg.errors.SolverError.
+
+    Every core call that can fail numerically (simulate, steady_state, sweep)
+    goes through here, so ``_core.SolverError`` never reaches a user.
+    """
     try:
         return fn(*args, **kwargs)
     except _core.SolverError as exc:
@@ -121,14 +125,15 @@ class Solution:
     z : (n_cells,) cell centres, m above the bottom wall
     c : (n_t, n_cells) heavy share of the solids (cell averages), in [0, 1]
     params : every model parameter used (SI units)
-    stats : solver counters (steps, rejected, newton_iters, rhs_evals, ...)
+    stats : solver counters (steps, rejected, newton_iters, rhs_evals, ...:
+        ints; max_clip, the largest amount of c clipped from one cell, a float)
     """
 
     t: np.ndarray
     z: np.ndarray
     c: np.ndarray
     params: dict[str, float]
-    stats: dict[str, int] = field(default_factory=dict)
+    stats: dict[str, float] = field(default_factory=dict)
 
     def layers(self, n_layers: int = N_LAYERS) -> np.ndarray:
         """Mean of c over each of ``n_layers`` equal layers (D_p high for 15):
@@ -223,7 +228,7 @@ class SweepResult:
     t: Any
     layers: Any
     rmsd: np.ndarray | None
-    stats: list[dict[str, int]]
+    stats: list[dict[str, float]]
 
     @property
     def n_runs(self) -> int:
@@ -282,7 +287,7 @@ def _measured_entry(m: Any, i: int) -> tuple[np.ndarray, np.ndarray, int]:
     return c, t, s
 
 
-def _run_chunk(payload: dict[str, Any]) -> tuple[list[np.ndarray], np.ndarray, list[dict[str, int]]]:
+def _run_chunk(payload: dict[str, Any]) -> tuple[list[np.ndarray], np.ndarray, list[dict[str, float]]]:
     """Solve a list of runs with the Rust sweep (also what Dask workers run)."""
     layers, rmsd, stats = _call(
         _core.sweep,

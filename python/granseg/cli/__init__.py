@@ -15,6 +15,8 @@ import pkgutil
 import sys
 import warnings
 
+from granseg.errors import GransegError
+
 __all__ = ["main", "build_parser"]
 
 
@@ -46,22 +48,25 @@ def main(argv: list[str] | None = None) -> int:
     logging.getLogger("fontTools").setLevel(logging.WARNING)
     # warnings as one line a user reads, not Python's "file:line: Class: ..." with a source line
     warnings.formatwarning = lambda message, category, *rest, **kw: f"granseg: warning: {message}\n"
+    # Only granseg's errors and the built-ins bad input raises are caught; any
+    # other exception is a bug in granseg, and its traceback is what a bug
+    # report needs, so it is not hidden behind a last-resort handler.
     try:
         return int(args.func(args) or 0)
     except KeyboardInterrupt:
         print("granseg: interrupted", file=sys.stderr)
         return 130
-    except (ValueError, FileNotFoundError, FileExistsError, OSError) as exc:
-        # Bad input: one clear line, no traceback.
+    except (ValueError, OSError) as exc:
+        # Bad input: argument validation (ValueError), a bad map or frame
+        # (MapFormatError, FlaggedMapError, BadFrame are ValueErrors), a user
+        # file missing, unreadable or already there (OSError: FileNotFoundError,
+        # OutputExistsError, PermissionError). One clear line, no traceback.
         print(f"granseg {args.command}: error: {exc}", file=sys.stderr)
         return 2
-    except Exception as exc:  # noqa: BLE001 - SolverError and friends
-        from granseg.errors import GransegError
-
-        if isinstance(exc, GransegError):
-            print(f"granseg {args.command}: error: {exc}", file=sys.stderr)
-            return 1
-        raise
+    except GransegError as exc:
+        # The input was fine but the work failed (SolverError, FitError).
+        print(f"granseg {args.command}: error: {exc}", file=sys.stderr)
+        return 1
 
 
 if __name__ == "__main__":

@@ -9,13 +9,11 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from granseg.errors import BadFrame
+
 __all__ = ["BadFrame", "FrameDirectory", "VideoFrames", "open_frames", "IMAGE_SUFFIXES"]
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
-
-
-class BadFrame(Exception):
-    """One frame cannot be used (unreadable, truncated, wrong size, no spheres)."""
 
 
 class FrameDirectory:
