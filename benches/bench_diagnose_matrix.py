@@ -20,7 +20,7 @@ import time
 from pathlib import Path
 
 from granseg.diagnosis import diagnose
-from granseg.diagnosis.catalogue import names
+from granseg.fitting.causes import names
 from granseg.synth.virtual import campaign, random_conditions, random_effect
 
 TRUTHS = ["none", *names(), "misclassification"]

@@ -11,7 +11,7 @@ from __future__ import annotations
 import pytest
 
 from granseg.diagnosis import diagnose
-from granseg.diagnosis.catalogue import names
+from granseg.fitting.causes import names
 from granseg.synth.virtual import campaign, random_conditions, random_effect
 
 

@@ -1,28 +1,23 @@
 """Calibration of the model's unknowns against a campaign of measured maps.
 
-Two stages, both solved by the Rust sweep (one ``granseg.sweep`` call per
-stage or per refinement step, all experiments at once, in parallel):
+Two stages, both on the fitting layer (:mod:`granseg.fitting`), whose every
+model evaluation is one parallel sweep over all experiments:
 
 1. the paper's full factorial design over any model parameters (default
    ``k`` in {0.5, 0.6, 0.7} and ``delta_over_H`` in {0.18, 0.20, 0.22}): the
    RMSD [-] of every experiment for every grid point, printed by
    :meth:`Calibration.table` in the layout of the paper's Table 4;
-2. a bounded least-squares refinement (``scipy.optimize.least_squares``)
-   from the grid point with the lowest mean RMSD, on the residuals of every
-   (time, layer) entry of every experiment stacked together, each experiment's
-   weighted by 1 / sqrt(its number of entries) so that every experiment
-   counts the same (the sum of squares is the sum of their mean squared
-   errors). Each residual evaluation is one sweep over all experiments at the
-   trial point *and* at the forward-difference points of the Jacobian, so the
-   parallel core sees (n_params + 1) x n_experiments runs at once. Standard
-   errors come from the Jacobian at the optimum (see
-   :func:`granseg.fit.weighted_covariance`), inflated by the smoothing width
-   the maps record (a moving average of n frames leaves about 1/n as many
-   independent residuals).
+2. a bounded least-squares refinement of the baseline
+   (``fit(data, Baseline())``) from the grid point with the lowest mean RMSD,
+   on the residuals of every (time, layer) entry of every experiment, each
+   experiment weighted so that it counts once (see
+   :mod:`granseg.fitting.observe`). Standard errors by the ``"jacobian"``
+   estimator of :mod:`granseg.fitting.solve`.
 
 The model map is compared on the measured grid: the layer means at the
-measured times, smoothed with the moving average the map records (done in
-the Rust core, exactly as ``granseg.sweep(measured=...)`` documents).
+measured times, smoothed with the moving average the map records.
+:func:`granseg.diagnose` starts from this calibration, so both report the
+same baseline.
 
 Example::
 
@@ -32,11 +27,9 @@ Example::
 
 from __future__ import annotations
 
-import itertools
 import math
 import os
 import sys
-import threading
 import time
 import warnings
 from collections.abc import Callable, Mapping, Sequence
@@ -46,10 +39,10 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from scipy.optimize import least_squares
 
-from granseg.fit import weighted_covariance
+from granseg.fitting import BASE_PARAMS, Baseline, Data, Fit, Param, evaluate, factorial, fit
 from granseg.maps import Campaign, Map, check_accepted, load_campaign
+from granseg.model import defaults
 
 __all__ = ["DEFAULT_GRID", "Calibration", "CalibrationWarning", "ExperimentOptimum", "calibrate", "check_grid"]
 
@@ -91,7 +84,8 @@ class Calibration:
     there; ``model_layers[j]`` the model map compared with experiment j at
     the optimum (measured grid, smoothed like the measurement);
     ``at_bound`` the parameters the refinement left on a bound of its range
-    (the optimum may lie beyond: widen ``bounds``).
+    (the optimum may lie beyond: widen ``bounds``); ``fit`` and ``data`` the
+    fitting layer's objects behind the result (the diagnosis starts from them).
     """
 
     names: list[str]
@@ -110,6 +104,8 @@ class Calibration:
     settings: dict[str, Any] = field(default_factory=dict)
     per_experiment: dict[str, ExperimentOptimum] | None = None
     at_bound: list[str] = field(default_factory=list)
+    fit: Fit | None = field(default=None, repr=False)
+    data: Data | None = field(default=None, repr=False)
 
     @property
     def grid_mean(self) -> np.ndarray:
@@ -216,155 +212,24 @@ def _as_maps(campaign: Campaign | Sequence[Map] | str | os.PathLike) -> list[Map
 
 
 def _default_bounds(grid: Mapping[str, list[float]]) -> dict[str, tuple[float, float]]:
-    """Each parameter within its grid range widened by the range on both sides (> 0)."""
+    """The baseline's physical ranges for k and delta/H (:data:`BASE_PARAMS`), so that a
+    calibration and a diagnosis search the same space; any other parameter within
+    its grid range widened by the range on both sides (> 0 for a positive grid)."""
+    physical = {p.name: (p.lo, p.hi) for p in BASE_PARAMS}
     out = {}
     for key, vals in grid.items():
         lo, hi = min(vals), max(vals)
         span = hi - lo if hi > lo else 0.5 * abs(lo) or 1.0
-        out[key] = (max(lo - span, 0.25 * lo if lo > 0 else lo - span), hi + span)
+        widened = (max(lo - span, 0.25 * lo if lo > 0 else lo - span), hi + span)
+        out[key] = physical.get(key, widened)
     return out
 
 
-# --------------------------------------------------------------------------- the engine
-
-
-class _Engine:
-    """Evaluates model-vs-measurement residuals through granseg.sweep, counting runs."""
-
-    def __init__(self, maps: list[Map], base: Mapping[str, Any], opts: Mapping[str, Any],
-                 client: Any, log: Callable[[str], None]) -> None:
-        self.maps = maps
-        self.cases = [{**m.case(), **base} for m in maps]
-        self.measured = [m.measured() for m in maps]
-        self.masks = [np.isfinite(m.c) for m in maps]
-        self.opts = dict(opts)
-        self.client = client
-        self.log = log
-        self.n_sweeps = 0
-        self.n_runs = 0
-        self._lock = threading.Lock()
-
-    def factorial(self, grid: Mapping[str, list[float]]) -> tuple[list[dict[str, float]], np.ndarray]:
-        """RMSD (n_points, n_cases) of the full factorial ``grid`` in one sweep."""
-        import granseg
-
-        points = [dict(zip(grid, v, strict=True)) for v in itertools.product(*grid.values())]
-        n = len(points) * len(self.cases)
-        self.log(f"factorial design: {len(self.cases)} experiments x {len(points)} points = {n} runs")
-        t0 = time.perf_counter()
-        res = granseg.sweep(grid=dict(grid), cases=self.cases, measured=self.measured,
-                            client=self.client, **self.opts)
-        self._count(n)
-        rmsd = np.asarray(res.rmsd, dtype=float).reshape(len(self.cases), len(points)).T
-        self.log(f"factorial design: done in {time.perf_counter() - t0:.1f} s")
-        return points, rmsd
-
-    def at_points(self, points: list[dict[str, float]], which: Sequence[int] | None = None
-                  ) -> list[list[np.ndarray]]:
-        """Model maps of cases ``which`` (default all) at each point: [point][case] arrays."""
-        import granseg
-
-        idx = list(range(len(self.cases))) if which is None else list(which)
-        cases = [{**self.cases[i], **p} for p in points for i in idx]
-        measured = [self.measured[i] for _ in points for i in idx]
-        res = granseg.sweep(grid={}, cases=cases, measured=measured, client=self.client, **self.opts)
-        self._count(len(cases))
-        layers = [np.asarray(a, dtype=float) for a in res.layers]
-        return [layers[j * len(idx):(j + 1) * len(idx)] for j in range(len(points))]
-
-    def residuals(self, layers: Sequence[np.ndarray], which: Sequence[int]) -> np.ndarray:
-        """Stacked measured - model over the finite entries of cases ``which``, each case
-        weighted by 1 / sqrt(its number of entries) (see :meth:`weights`)."""
-        parts = [(self.maps[i].c - lay)[self.masks[i]] for i, lay in zip(which, layers, strict=True)]
-        return np.concatenate(parts) * self.weights(which)
-
-    def weights(self, which: Sequence[int]) -> np.ndarray:
-        """Per stacked entry, 1 / sqrt(entries of its case).
-
-        The sum of squares is then the sum of the cases' mean squared errors:
-        every experiment counts the same however long it was filmed, as in the
-        factorial design's criterion (the mean of the experiments' RMSD) and
-        in the diagnosis. Pooled unweighted, a long experiment dominated: on
-        the demo campaign the refinement then ended at a mean RMSD of 0.106
-        while the diagnosis's baseline reached 0.099.
-        """
-        return np.concatenate([np.full(int(self.masks[i].sum()), 1.0 / math.sqrt(max(int(self.masks[i].sum()), 1)))
-                               for i in which])
-
-    def _count(self, runs: int) -> None:
-        with self._lock:
-            self.n_sweeps += 1
-            self.n_runs += runs
-
-
-# --------------------------------------------------------------------------- refinement
-
-
-@dataclass
-class _Fit:
-    x: np.ndarray
-    cov: np.ndarray
-    layers: list[np.ndarray]
-    converged: bool
-    message: str
-    n_eval: int
-
-
-def _refine(engine: _Engine, which: Sequence[int], x0: np.ndarray, keys: list[str],
-            bounds: tuple[np.ndarray, np.ndarray], fd_rel: float, max_nfev: int,
-            label: str) -> _Fit:
-    """Bounded least squares on the stacked residuals of cases ``which`` from ``x0``."""
-    cache: dict[bytes, tuple[np.ndarray, np.ndarray, list[np.ndarray]]] = {}
-    lo, hi = bounds
-
-    def evaluate(x: np.ndarray) -> tuple[np.ndarray, np.ndarray, list[np.ndarray]]:
-        key = np.asarray(x, dtype=float).tobytes()
-        if key not in cache:
-            cache.clear()
-            steps = _fd_steps(x, lo, hi, fd_rel)
-            pts = [x] + [x + np.eye(len(x))[j] * steps[j] for j in range(len(x))]
-            t0 = time.perf_counter()
-            maps = engine.at_points([dict(zip(keys, map(float, p), strict=True)) for p in pts], which)
-            r = [engine.residuals(m, which) for m in maps]
-            jac = np.column_stack([(r[j + 1] - r[0]) / steps[j] for j in range(len(x))])
-            cache[key] = (r[0], jac, maps[0])
-            _log_step(engine, label, keys, x, r[0], len(which), len(pts) * len(which), t0)
-        return cache[key]
-
-    res = least_squares(lambda x: evaluate(x)[0], x0, jac=lambda x: evaluate(x)[1],
-                        bounds=(lo, hi), x_scale="jac", max_nfev=max_nfev,
-                        xtol=1e-6, ftol=1e-8)
-    r, jac, layers = evaluate(res.x)
-    inflate = _smoothing_factor(engine, which)
-    cov = weighted_covariance(jac, r, engine.weights(which), len(keys)) * inflate
-    converged = bool(res.success) and res.status > 0
-    msg = str(res.message) if converged else f"not converged: {res.message}"
-    return _Fit(res.x, cov, layers, converged, msg, int(res.nfev))
-
-
-def _fd_steps(x: np.ndarray, lo: np.ndarray, hi: np.ndarray, rel: float) -> np.ndarray:
-    """Forward-difference steps, turned backward where the forward point leaves the bounds."""
-    h = rel * np.maximum(np.abs(x), 1e-2)
-    return np.where(x + h > hi, -h, h)
-
-
-def _smoothing_factor(engine: _Engine, which: Sequence[int]) -> float:
-    """Entry-weighted mean smoothing width: variance inflation of the Jacobian errors."""
-    w = np.array([engine.masks[i].sum() for i in which], dtype=float)
-    n = np.array([engine.maps[i].smoothing_frames for i in which], dtype=float)
-    return float((w * n).sum() / w.sum())
-
-
-def _log_step(engine: _Engine, label: str, keys: list[str], x: np.ndarray, r: np.ndarray,
-              n_cases: int, runs: int, t0: float) -> None:
-    pars = " ".join(f"{k}={v:.5g}" for k, v in zip(keys, x, strict=True))
-    engine.log(f"{label} evaluation {engine.n_sweeps}: {pars} root mean of the experiments' MSE="
-               f"{math.sqrt(float(r @ r) / n_cases):.5f} ({runs} runs, {time.perf_counter() - t0:.1f} s)")
-
-
-def _rmsd_of(engine: _Engine, layers: Sequence[np.ndarray], which: Sequence[int]) -> list[float]:
-    return [float(np.sqrt(np.mean((engine.maps[i].c - lay)[engine.masks[i]] ** 2)))
-            for i, lay in zip(which, layers, strict=True)]
+def _free_params(grid: Mapping[str, list[float]], bounds: tuple[np.ndarray, np.ndarray],
+                 x0: np.ndarray, fd_rel: float) -> list[Param]:
+    """The calibrated parameters, forward-difference steps relative to the start."""
+    return [Param(k, float(bounds[0][j]), float(bounds[1][j]), float(x0[j]), fd_rel * max(abs(float(x0[j])), 1e-2))
+            for j, k in enumerate(grid)]
 
 
 # --------------------------------------------------------------------------- public entry
@@ -397,10 +262,12 @@ def calibrate(
         each map fixes (rho_h, rho_l, c0).
     refine : run the bounded least-squares refinement from the best grid point.
     per_experiment : also find each experiment's own optimum (with errors).
-    bounds : ``{parameter: (lo, hi)}`` for the refinement (default: the grid
-        range widened by its width on both sides).
+    bounds : ``{parameter: (lo, hi)}`` for the refinement (default: the
+        baseline's physical ranges for k (0.2-1.6) and delta/H (0.05-0.6), the
+        grid range widened by its width on both sides for any other parameter).
     base : extra model parameters applied to every experiment (SI units).
-    n_cells, rtol, atol : solver settings passed to ``granseg.sweep``.
+    n_cells, rtol, atol : solver settings (default: the fitting layer's
+        :data:`granseg.fitting.DEFAULT_N_CELLS` cells and the core's tolerances).
     fd_rel : relative forward-difference step of the Jacobian.
     max_nfev : cap on residual evaluations per refinement (each one sweep).
     client : a ``dask.distributed.Client``; passed to ``granseg.sweep``.
@@ -408,55 +275,41 @@ def calibrate(
     accept_flagged : use maps that failed their frame-analysis quality checks
         (refused by default with :class:`granseg.errors.FlaggedMapError`).
     """
-    import granseg
-
     t_start = time.perf_counter()
     maps = _as_maps(campaign)
     check_accepted(maps, accept_flagged)
-    grid = check_grid(grid, list(granseg.defaults()))
+    grid = check_grid(grid, list(defaults()))
     keys = list(grid)
     bnds = _bounds_arrays(keys, bounds, grid)
-    opts = {k: v for k, v in dict(n_cells=n_cells, rtol=rtol, atol=atol).items() if v is not None}
     log = _printer(progress)
-    engine = _Engine(maps, dict(base or {}), opts, client, log)
-    points, table = engine.factorial(grid)
-    names = [m.name for m in maps]
-    everyone = list(range(len(maps)))
-    x0 = np.array([points[int(np.nanargmin(table.mean(axis=1)))][k] for k in keys])
+    data = Data.of(maps, dict(n_cells=n_cells, rtol=rtol, atol=atol, client=client), dict(base or {}), log)
+    n_runs = len(maps) * math.prod(len(v) for v in grid.values())
+    log(f"factorial design: {data.n} experiments x {n_runs // data.n} points = {n_runs} runs")
+    points, table = factorial(data, Baseline(), grid)
+    x0 = np.clip([points[int(np.nanargmin(table.mean(axis=1)))][k] for k in keys], *bnds)
+    params = _free_params(grid, bnds, x0, fd_rel)
     if refine:
-        fit = _refine(engine, everyone, np.clip(x0, *bnds), keys, bnds, fd_rel, max_nfev, "refine")
+        f = fit(data, Baseline(), params=params, max_nfev=max_nfev, errors="jacobian")
     else:
-        fit = _Fit(x0, np.full((len(keys), len(keys)), np.nan),
-                   engine.at_points([dict(zip(keys, x0, strict=True))])[0], True, "grid only", 0)
-    per = _per_experiment(engine, table, points, keys, bnds, fd_rel, max_nfev) if per_experiment else None
-    rmsd = _rmsd_of(engine, fit.layers, everyone)
-    settings = {"grid": grid, "bounds": {k: list(map(float, (bnds[0][i], bnds[1][i])))
-                                         for i, k in enumerate(keys)},
-                "base": dict(base or {}), **opts, "fd_rel": fd_rel, "max_nfev": max_nfev,
-                "n_sweeps": engine.n_sweeps, "n_runs": engine.n_runs}
+        f = evaluate(data, Baseline(), params, dict(zip(keys, x0, strict=True)))
+        f.message = "grid only"
+    per = _per_experiment(data, table, points, params, max_nfev) if per_experiment else None
+    settings = {"grid": grid, "bounds": {p.name: [p.lo, p.hi] for p in params},
+                "base": dict(base or {}), **data.solver_settings(), "fd_rel": fd_rel, "max_nfev": max_nfev,
+                "errors": f.error_method, "n_sweeps": data.n_sweeps, "n_runs": data.n_runs}
     cal = Calibration(
-        names=names, keys=keys, grid_points=points, grid_rmsd=table,
-        best=dict(zip(keys, map(float, fit.x), strict=True)),
-        stderr={k: float(np.sqrt(fit.cov[i, i])) if np.isfinite(fit.cov[i, i]) else float("nan")
-                for i, k in enumerate(keys)},
-        rmsd=dict(zip(names, rmsd, strict=True)), refined=refine, converged=fit.converged,
-        message=fit.message, model_layers=fit.layers, n_evaluations=fit.n_eval,
-        elapsed=time.perf_counter() - t_start, settings=settings, per_experiment=per,
-        at_bound=_on_bounds(keys, fit.x, bnds) if refine else [],
+        names=data.names, keys=keys, grid_points=points, grid_rmsd=table,
+        best=f.values(), stderr=f.errors(), rmsd=dict(zip(data.names, map(float, f.rmsd), strict=True)),
+        refined=refine, converged=f.converged, message=f.message, model_layers=f.layers,
+        n_evaluations=f.nfev, elapsed=time.perf_counter() - t_start, settings=settings,
+        per_experiment=per, at_bound=f.at_bounds() if refine else [], fit=f, data=data,
     )
     for k in cal.at_bound:
         warnings.warn(f"calibrate: the refined {k} = {cal.best[k]:.4g} lies on a bound of its range "
                       f"{settings['bounds'][k]}; the optimum may lie beyond it (widen bounds=)",
                       CalibrationWarning, stacklevel=2)
-    log(f"done: {engine.n_runs} runs in {engine.n_sweeps} sweeps, {cal.elapsed:.1f} s")
+    log(f"done: {data.n_runs} runs in {data.n_sweeps} sweeps, {cal.elapsed:.1f} s")
     return cal
-
-
-def _on_bounds(keys: list[str], x: np.ndarray, bounds: tuple[np.ndarray, np.ndarray]) -> list[str]:
-    """Parameters within 1e-6 of their range's width from a bound."""
-    lo, hi = bounds
-    tol = 1e-6 * (hi - lo)
-    return [k for i, k in enumerate(keys) if x[i] <= lo[i] + tol[i] or x[i] >= hi[i] - tol[i]]
 
 
 def _bounds_arrays(keys: list[str], bounds: Mapping[str, tuple[float, float]] | None,
@@ -473,24 +326,19 @@ def _bounds_arrays(keys: list[str], bounds: Mapping[str, tuple[float, float]] | 
     return lo, hi
 
 
-def _per_experiment(engine: _Engine, table: np.ndarray, points: list[dict[str, float]],
-                    keys: list[str], bnds: tuple[np.ndarray, np.ndarray], fd_rel: float,
+def _per_experiment(data: Data, table: np.ndarray, points: list[dict[str, float]], params: list[Param],
                     max_nfev: int) -> dict[str, ExperimentOptimum]:
     """Each experiment's own refinement from its own best grid point (threads share the core)."""
 
     def one(i: int) -> ExperimentOptimum:
-        x0 = np.clip([points[int(np.nanargmin(table[:, i]))][k] for k in keys], *bnds)
-        fit = _refine(engine, [i], x0, keys, bnds, fd_rel, max_nfev, engine.maps[i].name)
-        err = np.sqrt(np.clip(np.diag(fit.cov), 0, None))
-        return ExperimentOptimum(
-            best=dict(zip(keys, map(float, fit.x), strict=True)),
-            stderr=dict(zip(keys, map(float, err), strict=True)),
-            rmsd=_rmsd_of(engine, fit.layers, [i])[0], converged=fit.converged, message=fit.message)
+        start = points[int(np.nanargmin(table[:, i]))]
+        f = fit(data, Baseline(), params=params, x0=start, which=[i], max_nfev=max_nfev, errors="jacobian")
+        return ExperimentOptimum(best=f.values(), stderr=f.errors(), rmsd=float(f.rmsd[i]),
+                                 converged=f.converged, message=f.message)
 
-    n = len(engine.maps)
-    with ThreadPoolExecutor(max_workers=min(4, n)) as pool:
-        results = list(pool.map(one, range(n)))
-    return {m.name: r for m, r in zip(engine.maps, results, strict=True)}
+    with ThreadPoolExecutor(max_workers=min(4, data.n)) as pool:
+        results = list(pool.map(one, range(data.n)))
+    return dict(zip(data.names, results, strict=True))
 
 
 def _printer(progress: bool) -> Callable[[str], None]:

@@ -137,6 +137,10 @@ class Conditions:
         """Normalised load M~ = M_w / M_g [-]."""
         return self.M_w / self.M_g
 
+    def case(self) -> dict[str, float]:
+        """Model parameters this experiment fixes: rho_h, rho_l, c0, M_w."""
+        return {"rho_h": self.rho_h, "rho_l": self.rho_l, "c0": self.c0, "M_w": self.M_w}
+
 
 @dataclass(frozen=True, eq=False)
 class Map(Conditions):
@@ -197,10 +201,6 @@ class Map(Conditions):
     def measured(self) -> dict[str, Any]:
         """The dict ``granseg.sweep(measured=[...])`` takes for this map."""
         return {"c": self.c, "t": self.t, "smoothing_frames": self.smoothing_frames}
-
-    def case(self) -> dict[str, float]:
-        """Model parameters this experiment fixes: rho_h, rho_l, c0, M_w."""
-        return {"rho_h": self.rho_h, "rho_l": self.rho_l, "c0": self.c0, "M_w": self.M_w}
 
     def to_arrays(self) -> dict[str, Any]:
         """Every DATA.md key of this map (optional ones only when present)."""
@@ -347,6 +347,10 @@ def _validate_arrays(source: str, raw: Mapping[str, Any]) -> dict[str, Any]:
 
 def _validate_metadata(source: str, raw: Mapping[str, Any]) -> dict[str, Any]:
     out: dict[str, Any] = {k: _text(source, k, raw[k]) for k in ("name", "heavy", "light")}
+    # rho_h, rho_l, c0 and M_w are model parameters: their ranges are the core's
+    # (src/params.rs, Params::validate), so a map that passes here is one the
+    # model accepts (tests/test_maps.py checks the two agree). Maps cannot ask
+    # the core itself: the frame pipeline writes maps without the solver.
     out["rho_h"] = _scalar(source, "rho_h", raw["rho_h"], 0.0, np.inf, True)
     out["rho_l"] = _scalar(source, "rho_l", raw["rho_l"], 0.0, np.inf, True)
     if out["rho_h"] < out["rho_l"]:
@@ -355,7 +359,7 @@ def _validate_metadata(source: str, raw: Mapping[str, Any]) -> dict[str, Any]:
     if out["c0"] >= 1.0:
         raise _fail(source, "c0", f"value {out['c0']} outside (0, 1)")
     out["M_g"] = _scalar(source, "M_g", raw["M_g"], 0.0, np.inf, True)
-    out["M_w"] = _scalar(source, "M_w", raw["M_w"], 0.0, np.inf, False)
+    out["M_w"] = _scalar(source, "M_w", raw["M_w"], 0.0, np.inf, True)
     return out
 
 

@@ -10,7 +10,7 @@ __all__ = ["register", "run"]
 
 def register(subparsers: Any) -> None:
     """Add the ``diagnose`` subcommand."""
-    from granseg.diagnosis.catalogue import names
+    from granseg.fitting.causes import names
 
     p = subparsers.add_parser(
         "diagnose",

@@ -23,8 +23,7 @@ from typing import Any
 import numpy as np
 from scipy.stats import spearmanr
 
-from granseg.diagnosis.catalogue import Baseline
-from granseg.diagnosis.fitting import Data, Fit, model_maps, rmsd
+from granseg.fitting import Baseline, Data, Fit, model_maps, rmsd
 
 __all__ = ["DELTA_SCAN", "K_SCAN", "Evidence", "gather"]
 

@@ -21,13 +21,14 @@ from matplotlib.colors import TwoSlopeNorm
 from matplotlib.figure import Figure
 
 from granseg._io import OutputExistsError, atomic_write, save_json
-from granseg.diagnosis.catalogue import M_TILDE_REF
+from granseg.fitting.causes import M_TILDE_REF
+from granseg.model import defaults
 from granseg.plot import H_LABEL, T_LABEL, save_figure, style
 
 __all__ = ["write_report", "FIGURES"]
 
 FIGURES = ("residual_maps", "covariates", "candidates", "gain", "before_after")
-H_BED = 0.09
+H_BED = defaults()["H"]  # bed height [m], for the z / H axes
 PAIR_COLOURS = ["#0072B2", "#D55E00", "#009E73", "#CC79A7", "#E69F00", "#56B4E9", "#000000", "#F0E442"]
 
 

@@ -1,7 +1,7 @@
 """Model selection: leave-one-experiment-out comparison and a significance rule calibrated on null data.
 
 Every candidate (and the baseline) predicts each experiment with parameters
-fitted on the *other* experiments (:func:`granseg.diagnosis.fitting.loo_predict`).
+fitted on the *other* experiments (:func:`granseg.fitting.loo_predict`).
 Its held-out gain is the mean over experiments of (baseline held-out RMSD -
 candidate held-out RMSD) [-]; positive is better.
 

@@ -58,17 +58,23 @@ from typing import Any
 
 import numpy as np
 
+from granseg._io import check_writable, save_json
+from granseg.fitting import REGISTRY, Baseline, Effect, ExpInfo, causes, shifted_times
+from granseg.fitting.causes import ROUGHNESS
+from granseg.maps import Map, moving_average, save_map
+from granseg.model import MATERIALS, defaults, derived, simulate, velocity_profile
+
+DEFAULTS = defaults()
+
 __all__ = ["EFFECTS", "EFFECT_RANGES", "ROUGHNESS", "TABLE1", "Condition", "campaign",
            "fill_mass", "frame_rate", "random_conditions", "random_effect"]
 
-#: Relative surface roughness of each material (for the material_friction effect) [-].
-ROUGHNESS: dict[str, float] = {"steel": -1.0, "ceramic": 1.0, "glass": -0.4, "POM": 0.6, "PP": 0.2}
-SIDEWALL_REF = 0.5
 WINDOW_WIDTH_DP = 9.0
 #: Longest run [s]: a practical experiment's length (slow cases may end short of the steady state).
 MAX_DURATION = 7200.0
-EFFECTS = ("none", "load_dependent_shear_band", "evolving_shear_band", "sidewall_excess",
-           "material_friction", "spin_up_delay", "diffusivity_scale", "misclassification")
+#: "none" and every registered effect (the diagnosis catalogue plus the effects
+#: only hidden, such as misclassification).
+EFFECTS = ("none", *causes.names(catalogued_only=False))
 
 
 @dataclass(frozen=True)
@@ -108,8 +114,6 @@ TABLE1: tuple[Condition, ...] = tuple(_table1())
 
 def fill_mass(heavy: str, light: str, c0: float) -> float:
     """Mass of grains [kg] filling the bed (H = 15 D_p, phi_s = 0.6) with heavy share c0."""
-    from granseg.model import MATERIALS, defaults, derived
-
     p = defaults()
     rho = MATERIALS[heavy] * c0 + MATERIALS[light] * (1 - c0)
     return p["phi_s"] * derived()["A"] * p["H"] * rho
@@ -139,51 +143,20 @@ def frame_rate(rho_h: float, rho_l: float) -> float:
 # --------------------------------------------------------------------------- effects
 
 
-def _effect_setup(effect: str, strength: float, cond: Condition, base: Mapping[str, float],
-                  effect_params: Mapping[str, float]) -> tuple[dict[str, float], float, Any]:
-    """Solver parameters, time shift [s] and wall-view function of one experiment."""
-    from granseg.diagnosis import catalogue as cat
-    from granseg.model import MATERIALS
-
-    exp = cat.ExpInfo(cond.label(), cond.heavy, cond.light, MATERIALS[cond.heavy],
-                      MATERIALS[cond.light], cond.c0, cond.M_g, cond.M_w)
-    x = {"k": base["k"], "delta_over_H": base["delta_over_H"]}
-    params = cat.Baseline().solver_params(x, exp)
-    shift, view = 0.0, None
-    if effect == "load_dependent_shear_band":
-        params = cat.LoadDependentShearBand().solver_params({**x, "exponent": strength}, exp)
-    elif effect == "evolving_shear_band":
-        params.update(delta_drift=strength, delta_drift_time=float(effect_params.get("drift_time", 600.0)))
-    elif effect == "sidewall_excess":
-        a = float(np.clip(strength * exp.M_tilde / SIDEWALL_REF, -1.0, 1.0))
-        view = lambda c: cat.sidewall_view(c, a)  # noqa: E731
-    elif effect == "material_friction":
-        r = 0.5 * (ROUGHNESS.get(cond.heavy, 0.0) + ROUGHNESS.get(cond.light, 0.0))
-        params["k"] = base["k"] * math.exp(strength * r)
-    elif effect == "spin_up_delay":
-        shift = float(strength)
-    elif effect == "diffusivity_scale":
-        params["b"] = cat.B_LITERATURE * float(strength)
-    elif effect == "misclassification":
-        view = lambda c: strength + (1.0 - 2.0 * strength) * c  # noqa: E731
-    return params, shift, view
+def _exp_info(cond: Condition) -> ExpInfo:
+    return ExpInfo(cond.label(), cond.heavy, cond.light, MATERIALS[cond.heavy], MATERIALS[cond.light],
+                   cond.c0, cond.M_g, cond.M_w)
 
 
-def _check_effect(effect: str | None, strength: float | None) -> tuple[str, float]:
-    effect = "none" if effect is None else str(effect)
-    if effect not in EFFECTS:
-        raise ValueError(f"effect = {effect!r}: unknown; choose one of {', '.join(EFFECTS)}")
-    if effect == "none":
-        return effect, 0.0
-    if strength is None or not math.isfinite(float(strength)):
-        raise ValueError(f"strength: a finite number is required for effect {effect!r}")
-    s = float(strength)
-    limits = {"spin_up_delay": (0.0, 3600.0), "diffusivity_scale": (1e-3, 1e3),
-              "misclassification": (0.0, 0.5), "sidewall_excess": (-2.0, 2.0)}
-    lo, hi = limits.get(effect, (-5.0, 5.0))
-    if not lo <= s <= hi:
-        raise ValueError(f"strength = {s} for {effect!r} is out of range [{lo}, {hi}]")
-    return effect, s
+def _effect(effect: str | None, strength: float | None) -> tuple[Effect, float]:
+    """The registered effect (baseline for None / "none") and its checked strength."""
+    name = "none" if effect is None else str(effect)
+    if name == "none":
+        return Baseline(), 0.0
+    if name == "baseline" or name not in REGISTRY:
+        raise ValueError(f"effect = {name!r}: unknown; choose none or one of {', '.join(causes.names(catalogued_only=False))}")
+    chosen = causes.get(name)
+    return chosen, chosen.check_strength(strength)
 
 
 # --------------------------------------------------------------------------- one experiment
@@ -191,21 +164,12 @@ def _check_effect(effect: str | None, strength: float | None) -> tuple[str, floa
 
 def _truth(params: Mapping[str, float], t: np.ndarray, shift: float, n_cells: int) -> np.ndarray:
     """Bed layer means (n_t, 15) at plate times t [s] with segregation delayed by ``shift``."""
-    from granseg.model import simulate
-
-    tm = t - shift
-    pos = tm > 0
-    req = np.concatenate([[0.0], tm[pos]]) if not pos.all() else tm
-    lay = simulate(t=req, n_cells=n_cells, rtol=1e-5, atol=1e-7, **params).layers()
-    idx = np.zeros(t.size, dtype=np.int64)
-    idx[pos] = np.arange(req.size - pos.sum(), req.size)
-    return lay[idx]
+    request, index = shifted_times(t, shift)
+    return simulate(t=request, n_cells=n_cells, rtol=1e-5, atol=1e-7, **params).layers()[index]
 
 
 def _duration(params: Mapping[str, float], shift: float, n_cells: int) -> float:
     """Run length [s]: 1.5 x the time the layer map needs to settle within 0.02, in [600 s, MAX_DURATION]."""
-    from granseg.model import simulate
-
     t = np.arange(0.0, 8 * 3600.0 + 1, 20.0)
     lay = simulate(t=t, n_cells=min(n_cells, 90), **params).layers()
     dev = np.abs(lay - lay[-1]).max(axis=1)
@@ -216,9 +180,7 @@ def _duration(params: Mapping[str, float], shift: float, n_cells: int) -> float:
 
 def _persistence(params: Mapping[str, float], t: np.ndarray, fps: float, n_layers: int) -> np.ndarray:
     """Survival probability (n_t, n_layers) of a sphere in view from one frame to the next."""
-    from granseg.model import velocity_profile
-
-    H, D_p = params.get("H", 0.09), params.get("D_p", 6e-3)
+    H, D_p = params.get("H", DEFAULTS["H"]), params.get("D_p", DEFAULTS["D_p"])
     z = (np.arange(n_layers) + 0.5) * H / n_layers
     times = [0.0, float(t[-1])] if not params.get("delta_drift") else list(t)
     v = np.array([velocity_profile(z, tt, **params)[0] for tt in times])
@@ -245,19 +207,19 @@ def _count(seen: np.ndarray, survive: np.ndarray, n_range: tuple[int, int], rng:
     return n, n_heavy
 
 
-def _experiment(cond: Condition, effect: str, strength: float, base: Mapping[str, float],
+def _experiment(cond: Condition, effect: Effect, strength: float, base: Mapping[str, float],
                 effect_params: Mapping[str, float], rng: np.random.Generator, opts: Mapping[str, Any]
                 ) -> dict[str, Any]:
     """The map arrays (DATA.md keys) of one virtual experiment."""
-    from granseg.maps import moving_average
-
-    params, shift, view = _effect_setup(effect, strength, cond, base, effect_params)
+    exp = _exp_info(cond)
+    x = {**base, **effect.hidden(strength, exp, effect_params)}
+    params, shift = effect.solver_params(x, exp), effect.time_shift(x, exp)
     fps = float(opts["fps"] or frame_rate(params["rho_h"], params["rho_l"]))
     duration = float(opts["duration"] or _duration(params, shift, opts["n_cells"]))
     t = np.arange(0.0, duration + 0.5 / fps, 1.0 / fps)
     bed = _truth(params, t, shift, opts["n_cells"])
-    seen = np.clip(view(bed) if view else bed, 0.0, 1.0)
-    H = params.get("H", 0.09)
+    seen = np.clip(effect.observe(x, exp, bed), 0.0, 1.0)
+    H = params.get("H", DEFAULTS["H"])
     z = (np.arange(bed.shape[1]) + 0.5) * H / bed.shape[1]
     out = dict(t=t, z=z, name=cond.label(), heavy=cond.heavy, light=cond.light,
                rho_h=params["rho_h"], rho_l=params["rho_l"], c0=cond.c0, M_g=cond.M_g,
@@ -291,8 +253,6 @@ def _conditions(conditions: Sequence[Any] | None) -> list[Condition]:
             raise ValueError(f"conditions[{i}]: expected a Condition or a dict, got {type(c).__name__}")
     if not out:
         raise ValueError("conditions is empty")
-    from granseg.model import MATERIALS
-
     for i, c in enumerate(out):
         for key in ("heavy", "light"):
             if getattr(c, key) not in MATERIALS:
@@ -346,9 +306,7 @@ def campaign(
 
     Returns the list of :class:`granseg.maps.Map`, in condition order.
     """
-    from granseg.maps import Map, save_map
-
-    effect, s = _check_effect(effect, strength)
+    chosen, s = _effect(effect, strength)
     conds = _conditions(conditions)
     lo, hi = (int(v) for v in n_particles)
     if not 1 <= lo <= hi:
@@ -359,11 +317,11 @@ def campaign(
                 fps=fps, duration=duration, n_cells=int(n_cells))
     base = {"k": float(k), "delta_over_H": float(delta_over_H)}
     rng = np.random.default_rng(seed)
-    arrays = [_experiment(c, effect, s, base, dict(effect_params or {}), rng, opts) for c in conds]
+    arrays = [_experiment(c, chosen, s, base, dict(effect_params or {}), rng, opts) for c in conds]
     maps = [Map(**a) for a in arrays]
     if out_dir is not None:
         _write(Path(out_dir), arrays, save_map, force,
-               {"effect": effect, "strength": s, "seed": seed, "baseline": base,
+               {"effect": "none" if isinstance(chosen, Baseline) else chosen.name, "strength": s, "seed": seed, "baseline": base,
                 "effect_params": dict(effect_params or {}), "noise": bool(noise),
                 "n_particles": [lo, hi], "smoothing_s": smoothing_s,
                 "experiments": [a["name"] for a in arrays], "synthetic": True})
@@ -371,8 +329,6 @@ def campaign(
 
 
 def _write(out: Path, arrays: list[dict[str, Any]], save_map: Any, force: bool, truth: dict[str, Any]) -> None:
-    from granseg._io import check_writable, save_json
-
     out.mkdir(parents=True, exist_ok=True)
     targets = [out / f"{a['name']}.npz" for a in arrays] + [out / "campaign.json"]
     for p in targets:
@@ -383,28 +339,13 @@ def _write(out: Path, arrays: list[dict[str, Any]], save_map: Any, force: bool, 
 
 
 #: Strength ranges of the hidden-effect draws (:func:`random_effect`): sizes a
-#: 16-experiment campaign at the paper's noise can resolve. Units as ``strength``.
+#: 16-experiment campaign at the paper's noise can resolve (each effect's ``draw_range``).
 EFFECT_RANGES: dict[str, tuple[float, float]] = {
-    "load_dependent_shear_band": (0.3, 0.7),
-    "evolving_shear_band": (0.3, 0.6),      # |delta_drift|, sign drawn
-    "sidewall_excess": (0.3, 0.8),
-    "material_friction": (0.3, 0.6),
-    "spin_up_delay": (60.0, 240.0),         # s
-    "diffusivity_scale": (0.5, 1.0),        # |log factor|, sign drawn
-    "misclassification": (0.08, 0.15),
-}
+    n: causes.get(n).draw_range for n in EFFECTS[1:] if causes.get(n).draw_range is not None}
 
 
 def random_effect(effect: str, seed: int | None = None) -> tuple[float, dict[str, float]]:
-    """A seeded random ``(strength, effect_params)`` for ``effect`` within :data:`EFFECT_RANGES`."""
-    if effect not in EFFECT_RANGES:
-        raise ValueError(f"effect = {effect!r}: no strength range; known: {', '.join(EFFECT_RANGES)}")
-    rng = np.random.default_rng(seed)
-    lo, hi = EFFECT_RANGES[effect]
-    s = float(rng.uniform(lo, hi))
-    sign = 1.0 if rng.random() < 0.5 else -1.0
-    if effect == "evolving_shear_band":
-        return sign * s, {"drift_time": float(rng.uniform(300.0, 900.0))}
-    if effect == "diffusivity_scale":
-        return float(math.exp(sign * s)), {}
-    return s, {}
+    """A seeded random ``(strength, effect_params)`` for ``effect`` (its ``draw``)."""
+    if effect == "baseline" or effect not in REGISTRY:
+        raise ValueError(f"effect = {effect!r}: unknown; known: {', '.join(causes.names(catalogued_only=False))}")
+    return causes.get(effect).draw(np.random.default_rng(seed))

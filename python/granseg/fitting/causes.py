@@ -1,25 +1,15 @@
 """The catalogue of candidate causes: named, physical extensions of the baseline model.
 
-Each entry is a small object (:class:`Extension`) that knows
-
-* its ``name`` and a one-paragraph physical ``description``;
-* its extra parameters (:class:`Param`: name, bounds, start, finite-difference
-  step, unit), fitted on top of the baseline's global ``k`` [-] and
-  ``delta_over_H`` [-];
-* how a parameter set and one experiment's covariates become solver
-  parameters (:meth:`Extension.solver_params`), a time shift
-  (:meth:`Extension.time_shift`, s) and an observation transform applied to
-  the model's layer means before the map's moving average
-  (:meth:`Extension.observe`).
-
-With every extra parameter at its neutral value each extension is exactly the
-baseline of MODEL.md. Extensions are stateless apart from the list of
-material pairs :class:`MaterialFriction` is built for.
+Each cause is one :class:`~granseg.fitting.effects.Effect` subclass, used both
+by the diagnosis (fitted to a campaign) and by :func:`granseg.synth.campaign`
+(hidden in a virtual one). To add a cause, write one class here (or in your
+own module) and decorate it with :func:`~granseg.fitting.effects.register`;
+only new physics in the solver needs the Rust parameters too.
 
 Example::
 
-    >>> ext = get("load_dependent_shear_band")
-    >>> [p.name for p in ext.params(exps)]                    # doctest: +SKIP
+    >>> cause = get("load_dependent_shear_band")
+    >>> [p.name for p in cause.params([])]
     ['k', 'delta_over_H', 'exponent']
 """
 
@@ -27,24 +17,21 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 
-from granseg.maps import Conditions
+from granseg.fitting.effects import REGISTRY, Baseline, Effect, ExpInfo, Param, plus_minus, register
+from granseg.model import defaults
 
 __all__ = [
-    "CATALOGUE",
+    "B_LITERATURE",
     "M_TILDE_REF",
-    "Baseline",
+    "ROUGHNESS",
     "DiffusivityScale",
     "EvolvingShearBand",
-    "ExpInfo",
-    "Extension",
     "LoadDependentShearBand",
     "MaterialFriction",
-    "Param",
+    "Misclassification",
     "SidewallExcess",
     "SpinUpDelay",
     "build",
@@ -56,96 +43,15 @@ __all__ = [
 #: Reference normalised load M~ = M_w / M_g [-] of the laws below (the paper's
 #: three calibration cases sit at 0.41-0.54).
 M_TILDE_REF = 0.5
-B_LITERATURE = 0.041
+#: The diffusion constant b [-] of MODEL.md (the core's default, from the literature).
+B_LITERATURE = defaults()["b"]
+#: Relative surface roughness of each material [-] (how a hidden material_friction
+#: effect spreads k over the pairs of a virtual campaign).
+ROUGHNESS: dict[str, float] = {"steel": -1.0, "ceramic": 1.0, "glass": -0.4, "POM": 0.6, "PP": 0.2}
 
 
-@dataclass(frozen=True)
-class ExpInfo(Conditions):
-    """The covariates of one experiment the extensions may use (SI units)."""
-
-    @property
-    def pair(self) -> str:
-        """Material pair label, e.g. ``glass-PP``."""
-        return f"{self.heavy}-{self.light}"
-
-    @classmethod
-    def of(cls, m: Any) -> ExpInfo:
-        """From a :class:`granseg.maps.Map` (or anything with the same attributes)."""
-        return cls(str(m.name), str(m.heavy), str(m.light), float(m.rho_h), float(m.rho_l),
-                   float(m.c0), float(m.M_g), float(m.M_w))
-
-    def case(self) -> dict[str, float]:
-        """Solver parameters this experiment fixes."""
-        return {"rho_h": self.rho_h, "rho_l": self.rho_l, "c0": self.c0, "M_w": self.M_w}
-
-
-@dataclass(frozen=True)
-class Param:
-    """One fitted parameter: bounds, start, finite-difference step, unit, prior width.
-
-    ``prior_sd`` (same unit) adds a weak Gaussian pull towards ``start`` to the
-    fit; None means no prior.
-    """
-
-    name: str
-    lo: float
-    hi: float
-    start: float
-    step: float
-    unit: str = "-"
-    prior_sd: float | None = None
-
-
-BASE_PARAMS = (
-    Param("k", 0.2, 1.6, 0.70, 4e-3, "-"),
-    Param("delta_over_H", 0.05, 0.6, 0.18, 1.5e-3, "-"),
-)
-
-
-class Extension:
-    """Base class: the baseline model of MODEL.md (no extra parameter)."""
-
-    name = "baseline"
-    description = "MODEL.md as it stands: one k and one delta/H for every experiment."
-    #: the covariate this cause is expected to correlate with (for the evidence figures)
-    covariate: str | None = None
-
-    def extra(self, exps: Sequence[ExpInfo]) -> list[Param]:
-        """Extra parameters beyond the baseline's ``k`` and ``delta_over_H``."""
-        return []
-
-    def params(self, exps: Sequence[ExpInfo]) -> list[Param]:
-        """Every fitted parameter, baseline ones first."""
-        return [*BASE_PARAMS, *self.extra(exps)]
-
-    def solver_params(self, x: Mapping[str, float], exp: ExpInfo) -> dict[str, float]:
-        """Solver keyword parameters for experiment ``exp`` at parameters ``x``."""
-        return {**exp.case(), "k": x["k"], "delta_over_H": x["delta_over_H"]}
-
-    def time_shift(self, x: Mapping[str, float], exp: ExpInfo) -> float:
-        """Delay [s] between the plate start and the model's t = 0."""
-        return 0.0
-
-    def observe(self, x: Mapping[str, float], exp: ExpInfo, layers: np.ndarray) -> np.ndarray:
-        """What the camera sees given the bed's layer means (n_t, n_layers); identity here."""
-        return layers
-
-    def law(self, x: Mapping[str, float], err: Mapping[str, float]) -> str:
-        """A one-line, human-readable statement of the fitted extension."""
-        return f"k = {_pm(x['k'], err.get('k'))}, delta/H = {_pm(x['delta_over_H'], err.get('delta_over_H'))}"
-
-
-def _pm(v: float, e: float | None, fmt: str = ".3g") -> str:
-    if e is None or not math.isfinite(e):
-        return f"{v:{fmt}}"
-    return f"{v:{fmt}} ± {e:.2g}"
-
-
-class Baseline(Extension):
-    """The baseline itself (used as the reference of every comparison)."""
-
-
-class LoadDependentShearBand(Extension):
+@register
+class LoadDependentShearBand(Effect):
     """delta/H follows the normalised load: a power law in M~ = M_w / M_g."""
 
     name = "load_dependent_shear_band"
@@ -155,6 +61,7 @@ class LoadDependentShearBand(Extension):
         "(larger M~ = M_w/M_g) localises shear in a thinner band. "
         "delta/H = (delta/H)_ref * (M~ / 0.5)^(-exponent)."
     )
+    draw_range = (0.3, 0.7)
 
     def extra(self, exps: Sequence[ExpInfo]) -> list[Param]:
         return [Param("exponent", -2.0, 3.0, 0.0, 0.01, "-")]
@@ -166,11 +73,15 @@ class LoadDependentShearBand(Extension):
         return out
 
     def law(self, x: Mapping[str, float], err: Mapping[str, float]) -> str:
-        return (f"delta/H = {_pm(x['delta_over_H'], err.get('delta_over_H'))} x (M~/{M_TILDE_REF})"
-                f"^-({_pm(x['exponent'], err.get('exponent'))}), k = {_pm(x['k'], err.get('k'))}")
+        return (f"delta/H = {plus_minus(x['delta_over_H'], err.get('delta_over_H'))} x (M~/{M_TILDE_REF})"
+                f"^-({plus_minus(x['exponent'], err.get('exponent'))}), k = {plus_minus(x['k'], err.get('k'))}")
+
+    def hidden(self, strength: float, exp: ExpInfo, settings: Mapping[str, float]) -> dict[str, float]:
+        return {"exponent": strength}
 
 
-class EvolvingShearBand(Extension):
+@register
+class EvolvingShearBand(Effect):
     """delta drifts within a run: delta(t) = delta (1 + drift (1 - exp(-t / T)))."""
 
     name = "evolving_shear_band"
@@ -180,6 +91,8 @@ class EvolvingShearBand(Extension):
         "bottom): delta(t) = delta * (1 + drift * (1 - exp(-t / T))), the same drift and time "
         "scale T [s] in every experiment."
     )
+    draw_range = (0.3, 0.6)  # |delta_drift|, sign drawn
+    DRIFT_TIME = 600.0  # s, a hidden effect's time scale unless the campaign sets drift_time
 
     def extra(self, exps: Sequence[ExpInfo]) -> list[Param]:
         return [Param("delta_drift", -0.7, 2.0, 0.0, 0.01, "-"),
@@ -193,8 +106,17 @@ class EvolvingShearBand(Extension):
 
     def law(self, x: Mapping[str, float], err: Mapping[str, float]) -> str:
         T = 10.0 ** x["log10_drift_time"]
-        return (f"delta(t) = delta (1 + ({_pm(x['delta_drift'], err.get('delta_drift'))}) "
-                f"(1 - exp(-t / {T:.0f} s))), delta/H = {_pm(x['delta_over_H'], err.get('delta_over_H'))}")
+        return (f"delta(t) = delta (1 + ({plus_minus(x['delta_drift'], err.get('delta_drift'))}) "
+                f"(1 - exp(-t / {T:.0f} s))), delta/H = {plus_minus(x['delta_over_H'], err.get('delta_over_H'))}")
+
+    def hidden(self, strength: float, exp: ExpInfo, settings: Mapping[str, float]) -> dict[str, float]:
+        drift_time = float(settings.get("drift_time", self.DRIFT_TIME))
+        return {"delta_drift": strength, "log10_drift_time": math.log10(drift_time)}
+
+    def draw(self, rng: np.random.Generator) -> tuple[float, dict[str, float]]:
+        size, _ = super().draw(rng)
+        sign = 1.0 if rng.random() < 0.5 else -1.0
+        return sign * size, {"drift_time": float(rng.uniform(300.0, 900.0))}
 
 
 def sidewall_view(c: np.ndarray, a: float) -> np.ndarray:
@@ -207,7 +129,8 @@ def sidewall_view(c: np.ndarray, a: float) -> np.ndarray:
     return c + a * c * (1.0 - c)
 
 
-class SidewallExcess(Extension):
+@register
+class SidewallExcess(Effect):
     """The outer wall shows more heavy grains than the bulk where the bed is mixed."""
 
     name = "sidewall_excess"
@@ -218,6 +141,8 @@ class SidewallExcess(Extension):
         "a = s * M~ / 0.5 growing with the normalised load (radial forces grow as the band "
         "thins). The measured depth-mean then exceeds c0 during mixing."
     )
+    strength_limits = (-2.0, 2.0)
+    draw_range = (0.3, 0.8)
 
     def extra(self, exps: Sequence[ExpInfo]) -> list[Param]:
         return [Param("s", -1.0, 1.5, 0.0, 0.01, "-")]
@@ -231,11 +156,15 @@ class SidewallExcess(Extension):
         return sidewall_view(layers, self.strength(x, exp))
 
     def law(self, x: Mapping[str, float], err: Mapping[str, float]) -> str:
-        return (f"c_wall = c + a c (1 - c), a = ({_pm(x['s'], err.get('s'))}) x M~/{M_TILDE_REF}; "
+        return (f"c_wall = c + a c (1 - c), a = ({plus_minus(x['s'], err.get('s'))}) x M~/{M_TILDE_REF}; "
                 + super().law(x, err))
 
+    def hidden(self, strength: float, exp: ExpInfo, settings: Mapping[str, float]) -> dict[str, float]:
+        return {"s": strength}
 
-class MaterialFriction(Extension):
+
+@register
+class MaterialFriction(Effect):
     """k depends on the material pair: k_pair = k exp(u_pair), weak prior on u."""
 
     name = "material_friction"
@@ -246,6 +175,7 @@ class MaterialFriction(Extension):
         "prior (sd 0.3) towards the common k so that a pair seen once stays identifiable."
     )
     PRIOR_SD = 0.3
+    draw_range = (0.3, 0.6)
 
     def extra(self, exps: Sequence[ExpInfo]) -> list[Param]:
         pairs = sorted({e.pair for e in exps})
@@ -260,8 +190,13 @@ class MaterialFriction(Extension):
         parts = [f"{key[2:-1]}: {x['k'] * math.exp(v):.3g}" for key, v in x.items() if key.startswith("u[")]
         return "k per pair: " + ", ".join(parts)
 
+    def hidden(self, strength: float, exp: ExpInfo, settings: Mapping[str, float]) -> dict[str, float]:
+        r = 0.5 * (ROUGHNESS.get(exp.heavy, 0.0) + ROUGHNESS.get(exp.light, 0.0))
+        return {f"u[{exp.pair}]": strength * r}
 
-class SpinUpDelay(Extension):
+
+@register
+class SpinUpDelay(Effect):
     """Segregation starts only after the flow has spun up: a delay t_d [s]."""
 
     name = "spin_up_delay"
@@ -270,6 +205,8 @@ class SpinUpDelay(Extension):
         "The bed needs time to dilate and establish the shear profile after the plate starts; "
         "segregation begins only after a delay t_d [s] (model run at max(t - t_d, 0))."
     )
+    strength_limits = (0.0, 3600.0)
+    draw_range = (60.0, 240.0)  # s
 
     def extra(self, exps: Sequence[ExpInfo]) -> list[Param]:
         return [Param("t_delay", 0.0, 900.0, 1.0, 2.0, "s")]
@@ -278,18 +215,26 @@ class SpinUpDelay(Extension):
         return max(0.0, float(x["t_delay"]))
 
     def law(self, x: Mapping[str, float], err: Mapping[str, float]) -> str:
-        return f"segregation starts {_pm(x['t_delay'], err.get('t_delay'))} s after the plate; " + super().law(x, err)
+        return (f"segregation starts {plus_minus(x['t_delay'], err.get('t_delay'))} s after the plate; "
+                + super().law(x, err))
+
+    def hidden(self, strength: float, exp: ExpInfo, settings: Mapping[str, float]) -> dict[str, float]:
+        return {"t_delay": strength}
 
 
-class DiffusivityScale(Extension):
-    """The diffusion constant b differs from the literature's 0.041."""
+@register
+class DiffusivityScale(Effect):
+    """The diffusion constant b differs from the literature's."""
 
     name = "diffusivity_scale"
     covariate = "delta_R"
     description = (
-        "Shear-induced diffusion of these grains is stronger or weaker than the literature's "
-        "b = 0.041: D = b gdot D_p^2 with b = 0.041 exp(log_b_scale), one b for all."
+        f"Shear-induced diffusion of these grains is stronger or weaker than the literature's "
+        f"b = {B_LITERATURE:g}: D = b gdot D_p^2 with b = {B_LITERATURE:g} exp(log_b_scale), one b for all."
     )
+    #: a hidden effect's strength is the factor on b
+    strength_limits = (1e-3, 1e3)
+    draw_range = (0.5, 1.0)  # |log factor|, sign drawn
 
     def extra(self, exps: Sequence[ExpInfo]) -> list[Param]:
         return [Param("log_b_scale", -2.5, 2.5, 0.0, 0.01, "-")]
@@ -303,33 +248,56 @@ class DiffusivityScale(Extension):
         b = B_LITERATURE * math.exp(x["log_b_scale"])
         e = err.get("log_b_scale")
         eb = None if e is None or not math.isfinite(e) else b * e
-        return f"b = {_pm(b, eb)} (literature 0.041); " + super().law(x, err)
+        return f"b = {plus_minus(b, eb)} (literature {B_LITERATURE:g}); " + super().law(x, err)
+
+    def hidden(self, strength: float, exp: ExpInfo, settings: Mapping[str, float]) -> dict[str, float]:
+        return {"log_b_scale": math.log(strength)}
+
+    def draw(self, rng: np.random.Generator) -> tuple[float, dict[str, float]]:
+        size, _ = super().draw(rng)
+        sign = 1.0 if rng.random() < 0.5 else -1.0
+        return float(math.exp(sign * size)), {}
 
 
-#: The named causes, in the order they are reported.
-CATALOGUE: dict[str, type[Extension]] = {
-    cls.name: cls
-    for cls in (LoadDependentShearBand, EvolvingShearBand, SidewallExcess, MaterialFriction,
-                SpinUpDelay, DiffusivityScale)
-}
+@register
+class Misclassification(Effect):
+    """A share f of the spheres of each kind is taken for the other: c_seen = f + (1 - 2f) c.
+
+    Not in the catalogue: the diagnosis does not fit it, and a campaign with it
+    hidden tests that a misfit outside the catalogue is called ``unexplained``.
+    """
+
+    name = "misclassification"
+    catalogued = False
+    description = "The frame analysis takes a share f of each kind for the other: c_seen = f + (1 - 2 f) c."
+    strength_limits = (0.0, 0.5)
+    draw_range = (0.08, 0.15)
+
+    def extra(self, exps: Sequence[ExpInfo]) -> list[Param]:
+        return [Param("f", 0.0, 0.5, 0.0, 0.005, "-")]
+
+    def observe(self, x: Mapping[str, float], exp: ExpInfo, layers: np.ndarray) -> np.ndarray:
+        return x["f"] + (1.0 - 2.0 * x["f"]) * layers
+
+    def hidden(self, strength: float, exp: ExpInfo, settings: Mapping[str, float]) -> dict[str, float]:
+        return {"f": strength}
 
 
-def names() -> list[str]:
-    """The catalogue's cause names."""
-    return list(CATALOGUE)
+def names(*, catalogued_only: bool = True) -> list[str]:
+    """Registered cause names (default: those the diagnosis fits), in registration order."""
+    return [n for n, cls in REGISTRY.items()
+            if cls is not Baseline and (cls.catalogued or not catalogued_only)]
 
 
-def get(name: str) -> Extension:
-    """A fresh extension object by name (``baseline`` or a catalogue name)."""
-    if name == "baseline":
-        return Baseline()
+def get(name: str) -> Effect:
+    """A fresh effect object by name (``baseline`` or any registered cause)."""
     try:
-        return CATALOGUE[name]()
+        return REGISTRY[name]()
     except KeyError:
-        raise ValueError(f"unknown cause {name!r}; the catalogue has {', '.join(CATALOGUE)}") from None
+        raise ValueError(f"unknown cause {name!r}; known: {', '.join(REGISTRY)}") from None
 
 
-def build(selected: Sequence[str] | None = None) -> list[Extension]:
-    """The extensions to try (default: the whole catalogue), validated by name."""
+def build(selected: Sequence[str] | None = None) -> list[Effect]:
+    """The causes to try (default: the whole catalogue), validated by name."""
     chosen = names() if selected is None else list(selected)
     return [get(n) for n in chosen]

@@ -1,0 +1,164 @@
+"""The diagnosis' JSON contract, as TypedDicts, derived from a :class:`~granseg.diagnosis.run.Diagnosis`.
+
+The contract (issue 5): ``cause`` (a catalogue name, ``none`` or
+``unexplained``), ``explained``, a one-paragraph ``summary``, the
+``noise_floor`` [-], the ``baseline`` and the ``extended`` model (parameters,
+standard errors, RMSD in sample and held out, per experiment [-]), the
+``gain``, every ``candidate``, the ``decision`` with the thresholds the call
+used, the ``evidence`` and the run's ``settings``.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Any, TypedDict
+
+import numpy as np
+
+from granseg.fitting import REGISTRY, Fit
+
+if TYPE_CHECKING:
+    from granseg.diagnosis.run import Diagnosis
+
+__all__ = ["DiagnosisJSON", "ModelJSON", "build_result"]
+
+
+class BaselineJSON(TypedDict):
+    params: dict[str, float]
+    stderr: dict[str, float]
+    rmsd: dict[str, float]
+    rmsd_mean: float
+    rmsd_held_out: dict[str, float]
+    rmsd_held_out_mean: float
+
+
+class ModelJSON(BaselineJSON):
+    model: str
+    law: str
+    converged: bool
+    n_evaluations: int
+
+
+class CandidateJSON(TypedDict):
+    name: str
+    rmsd_held_out: float
+    rmsd: float
+    gain_held_out: float
+    gain_in_sample: float
+    params: dict[str, float]
+    stderr: dict[str, float]
+    law: str
+    description: str
+
+
+class GainJSON(TypedDict):
+    rmsd_in_sample: float
+    rmsd_held_out: float
+    per_experiment_in_sample: dict[str, float]
+    per_experiment_held_out: dict[str, float]
+
+
+class DecisionJSON(TypedDict):
+    reason: str
+    best_candidate: str | None
+    runner_up: str | None
+    gain_over_floor: float
+    baseline_rmsd_over_floor: float
+    margin_to_runner_up: float
+    gain_threshold: float
+    excess_threshold: float
+
+
+class DiagnosisJSON(TypedDict, total=False):
+    cause: str
+    explained: bool
+    summary: str
+    noise_floor: float
+    noise: dict[str, Any]
+    baseline: BaselineJSON
+    extended: ModelJSON | None
+    gain: GainJSON
+    candidates: list[CandidateJSON]
+    decision: DecisionJSON
+    evidence: dict[str, Any]
+    experiments: list[dict[str, Any]]
+    settings: dict[str, Any]
+    report: str
+
+
+def _by_name(names: list[str], values: Any) -> dict[str, float]:
+    return dict(zip(names, map(float, values), strict=True))
+
+
+def _model(d: Diagnosis, name: str, f: Fit) -> ModelJSON:
+    names = d.data.names
+    held = d.held_out[name]
+    return ModelJSON(model=f.effect.name, params=f.values(), stderr=f.errors(),
+                     law=f.effect.law(f.values(), f.errors()),
+                     rmsd=_by_name(names, f.rmsd), rmsd_mean=f.rmsd_mean,
+                     rmsd_held_out=_by_name(names, held), rmsd_held_out_mean=float(np.mean(held)),
+                     converged=f.converged, n_evaluations=f.nfev)
+
+
+def _candidate(d: Diagnosis, name: str, f: Fit) -> CandidateJSON:
+    return CandidateJSON(name=name, rmsd_held_out=float(np.mean(d.held_out[name])), rmsd=f.rmsd_mean,
+                         gain_held_out=d.gains[name], gain_in_sample=d.baseline.rmsd_mean - f.rmsd_mean,
+                         params=f.values(), stderr=f.errors(), law=f.effect.law(f.values(), f.errors()),
+                         description=f.effect.description)
+
+
+def _gain(base: ModelJSON, ext: ModelJSON | None, held_gain: float) -> GainJSON:
+    if ext is None:
+        return GainJSON(rmsd_in_sample=0.0, rmsd_held_out=0.0, per_experiment_in_sample={},
+                        per_experiment_held_out={})
+    return GainJSON(rmsd_in_sample=base["rmsd_mean"] - ext["rmsd_mean"], rmsd_held_out=held_gain,
+                    per_experiment_in_sample={n: base["rmsd"][n] - ext["rmsd"][n] for n in ext["rmsd"]},
+                    per_experiment_held_out={n: base["rmsd_held_out"][n] - ext["rmsd_held_out"][n]
+                                             for n in ext["rmsd"]})
+
+
+def summary(cause: str, explained: bool, ext: ModelJSON | None, base: BaselineJSON, floor: float, n: int) -> str:
+    """The verdict in one paragraph of plain words."""
+    if cause == "none":
+        return (f"The baseline model explains all {n} experiments within the measurement noise "
+                f"(mean RMSD {base['rmsd_mean']:.3f} against a noise floor of {floor:.3f}); "
+                f"no candidate cause improves the held-out predictions.")
+    if cause == "unexplained" or ext is None:
+        return (f"The baseline misses the data beyond the noise (mean RMSD {base['rmsd_mean']:.3f}, "
+                f"noise floor {floor:.3f}), but none of the catalogued causes improves the held-out "
+                f"predictions enough to name it; the misfit has a cause outside the catalogue.")
+    desc = REGISTRY[cause].description.split(":")[0].split(".")[0]
+    tail = ("which brings the misfit down to the noise floor" if explained else
+            "but a misfit beyond the noise remains")
+    return (f"Cause: {cause.replace('_', ' ')} ({desc.lower()}); fitted law: {ext['law']}. "
+            f"It lowers the mean held-out RMSD from {base['rmsd_held_out_mean']:.3f} to "
+            f"{ext['rmsd_held_out_mean']:.3f} over {n} experiments (noise floor {floor:.3f}), {tail}.")
+
+
+def build_result(d: Diagnosis) -> DiagnosisJSON:
+    """The JSON contract of diagnosis ``d``."""
+    v = d.verdict
+    full = _model(d, "baseline", d.baseline)
+    base = BaselineJSON(**{k: full[k] for k in BaselineJSON.__annotations__})  # type: ignore[typeddict-item]
+    ext = _model(d, v.cause, d.fits[v.cause]) if v.cause in d.fits else None
+    out = DiagnosisJSON(
+        cause=v.cause, explained=v.explained,
+        summary=summary(v.cause, v.explained, ext, base, d.floor, d.data.n),
+        noise_floor=d.floor,
+        noise={"per_experiment": {e.name: e.floor for e in d.noise}, "method": d.noise[0].method},
+        baseline=base, extended=ext, gain=_gain(full, ext, d.gains.get(v.cause, 0.0)),
+        candidates=[_candidate(d, n, f) for n, f in d.fits.items()],
+        decision=DecisionJSON(reason=v.reason, best_candidate=v.best, runner_up=v.runner_up,
+                              gain_over_floor=v.gain_ratio, baseline_rmsd_over_floor=v.excess_ratio,
+                              margin_to_runner_up=v.margin, gain_threshold=d.thresholds["gain"],
+                              excess_threshold=d.thresholds["excess"]),
+        evidence=dict(d.evidence),
+        experiments=[{"name": e.name, "heavy": e.heavy, "light": e.light, "c0": e.c0, "M_g": e.M_g,
+                      "M_w": e.M_w, "M_tilde": e.M_tilde, "delta_R": e.delta_R} for e in d.data.exps],
+        settings={**d.data.solver_settings(), "errors": {"baseline": d.baseline.error_method,
+                                                        "candidates": "cluster"},
+                  "n_model_runs": d.data.n_runs, "n_sweeps": d.data.n_sweeps,
+                  "sweep_seconds": d.data.sweep_seconds, "elapsed_s": d.timing.get("total")},
+    )
+    if d.report_path is not None:
+        out["report"] = d.report_path
+    return out

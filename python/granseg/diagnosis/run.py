@@ -1,0 +1,190 @@
+"""The diagnosis, step by step: calibrate, noise floor, evidence, candidates, held-out verdict.
+
+:func:`diagnose` starts from a :class:`granseg.calibration.Calibration` of
+the baseline (made here unless given), so that both report the same
+baseline; every candidate is then fitted with the same fitting layer
+(:mod:`granseg.fitting`) from the baseline's optimum, and every model,
+baseline included, predicts each experiment from the others.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from granseg._io import check_writable, save_json
+from granseg.calibration import Calibration, calibrate
+from granseg.diagnosis import selection
+from granseg.diagnosis.evidence import Evidence, gather
+from granseg.diagnosis.noise import NoiseEstimate, campaign_floor
+from granseg.diagnosis.result import DiagnosisJSON, build_result
+from granseg.fitting import DEFAULT_N_CELLS, Data, Fit, fit, loo_predict
+from granseg.fitting import causes as catalogue
+from granseg.maps import Map, check_accepted, load_campaign
+
+__all__ = ["Diagnosis", "diagnose"]
+
+
+@dataclass
+class Diagnosis:
+    """The outcome of :func:`diagnose`; its JSON (:attr:`result`) is derived from it.
+
+    ``calibration`` the baseline's calibration, ``baseline`` its
+    :class:`~granseg.fitting.Fit` and ``fits`` the candidates'; ``held_out``
+    and ``held_out_layers`` the leave-one-out RMSDs and maps by model name;
+    ``gains`` the held-out gain [-] of each candidate; ``floor`` and ``noise``
+    the noise floor [-]; ``thresholds`` the decision thresholds this call used.
+    """
+
+    maps: list[Map]
+    data: Data
+    calibration: Calibration
+    baseline: Fit
+    fits: dict[str, Fit]
+    held_out: dict[str, np.ndarray]
+    held_out_layers: dict[str, list[np.ndarray]]
+    gains: dict[str, float]
+    floor: float
+    noise: list[NoiseEstimate]
+    evidence: Evidence
+    verdict: selection.Verdict
+    thresholds: dict[str, float]
+    timing: dict[str, float] = field(default_factory=dict)
+    report_path: str | None = None
+
+    @property
+    def cause(self) -> str:
+        """The named cause: a catalogue name, ``none`` or ``unexplained``."""
+        return self.verdict.cause
+
+    @property
+    def explained(self) -> bool:
+        return bool(self.verdict.explained)
+
+    @property
+    def result(self) -> DiagnosisJSON:
+        """The machine-readable diagnosis (the contract of issue 5, :class:`DiagnosisJSON`)."""
+        return build_result(self)
+
+    def to_json(self) -> DiagnosisJSON:
+        """Same as :attr:`result`."""
+        return self.result
+
+
+def _as_maps(campaign: Any) -> list[Map]:
+    maps = list(load_campaign(Path(campaign))) if isinstance(campaign, str | os.PathLike) else list(campaign)
+    if len(maps) < 3:
+        raise ValueError(f"diagnose: a campaign needs at least 3 experiments for leave-one-out, got {len(maps)}")
+    names = [m.name for m in maps]
+    if len(set(names)) != len(names):
+        raise ValueError(f"diagnose: duplicate experiment names in {names}")
+    return maps
+
+
+def _printer(progress: bool) -> Callable[[str], None]:
+    if not progress:
+        return lambda msg: None
+    return lambda msg: print(f"[diagnose] {msg}", file=sys.stderr, flush=True)
+
+
+def _check_calibration(cal: Calibration, maps: list[Map]) -> None:
+    if not isinstance(cal, Calibration) or cal.fit is None or cal.data is None:
+        raise ValueError("calibration: expected the Calibration that granseg.calibrate returned")
+    if cal.names != [m.name for m in maps]:
+        raise ValueError(f"calibration: made on experiments {cal.names}, not on this campaign's "
+                         f"{[m.name for m in maps]}")
+    if not cal.refined or set(cal.keys) != {"k", "delta_over_H"}:
+        raise ValueError("calibration: the diagnosis starts from a refined calibration of k and delta_over_H")
+
+
+def diagnose(
+    campaign: Any,
+    *,
+    calibration: Calibration | None = None,
+    json: str | os.PathLike | None = None,
+    report: str | os.PathLike | None = None,
+    force: bool = False,
+    causes: Sequence[str] | None = None,
+    n_cells: int = DEFAULT_N_CELLS,
+    rtol: float | None = None,
+    atol: float | None = None,
+    max_nfev: int = 25,
+    gain_threshold: float = selection.GAIN_THRESHOLD,
+    excess_threshold: float = selection.EXCESS_THRESHOLD,
+    progress: bool = True,
+    accept_flagged: bool = False,
+) -> Diagnosis:
+    """Find what the baseline model gets wrong on a campaign, name the cause, measure the gain.
+
+    Parameters
+    ----------
+    campaign : campaign directory of map ``.npz`` files (DATA.md), a
+        :class:`granseg.maps.Campaign` or a list of maps (at least 3).
+    calibration : the baseline's :func:`granseg.calibrate` result on the same
+        maps (default: calibrated here with the same solver settings).
+    json : write the JSON contract here (refuses to overwrite unless ``force``).
+    report : write the HTML report and figures into this directory.
+    causes : catalogue names to consider (default: all of
+        :func:`granseg.fitting.causes.names`).
+    n_cells : finite-volume cells of the model runs.
+    rtol, atol : solver tolerances (default: the core's).
+    max_nfev : cap on residual evaluations (one sweep each) per fit.
+    gain_threshold, excess_threshold : the decision thresholds in units of the
+        noise floor (defaults calibrated on null campaigns, see
+        :mod:`granseg.diagnosis.selection`).
+    progress : log each step to stderr.
+    accept_flagged : use maps that failed their frame-analysis quality checks
+        (refused by default with :class:`granseg.errors.FlaggedMapError`).
+    """
+    t_start = time.perf_counter()
+    if json is not None:
+        check_writable(json, force)
+    candidates = catalogue.build(causes)
+    log = _printer(progress)
+    maps = _as_maps(campaign)
+    check_accepted(maps, accept_flagged)
+    if calibration is None:
+        calibration = calibrate(maps, n_cells=n_cells, rtol=rtol, atol=atol, max_nfev=max_nfev,
+                                progress=progress, accept_flagged=accept_flagged)
+    _check_calibration(calibration, maps)
+    data, base = calibration.data, calibration.fit
+    assert data is not None and base is not None
+    data.log = log
+    timing = {"baseline": time.perf_counter() - t_start}
+    floor, noise = campaign_floor(maps)
+    log(f"{data.n} experiments; noise floor {floor:.4f} (mean over experiments); baseline mean RMSD "
+        f"{base.rmsd_mean:.4f}")
+    ev = gather(data, base, [e.floor for e in noise])
+    fits = {c.name: fit(data, c, x0=base.values(), max_nfev=max_nfev) for c in candidates}
+    timing["candidates"] = time.perf_counter() - t_start - timing["baseline"]
+    held, held_layers = {}, {}
+    for name, f in {"baseline": base, **fits}.items():
+        held[name], held_layers[name], _ = loo_predict(data, f)
+    gains = {n: selection.held_out_gain(held["baseline"], held[n]) for n in fits}
+    verdict = selection.decide(gains, floor, base.rmsd_mean, {n: f.rmsd_mean for n, f in fits.items()},
+                               gain_threshold=gain_threshold, excess_threshold=excess_threshold)
+    timing["total"] = time.perf_counter() - t_start
+    log(f"verdict: {verdict.cause} ({verdict.reason}); {data.n_runs} model runs in "
+        f"{data.n_sweeps} sweeps, {timing['total']:.1f} s")
+    diag = Diagnosis(maps, data, calibration, base, fits, held, held_layers, gains, floor, noise, ev, verdict,
+                     {"gain": float(gain_threshold), "excess": float(excess_threshold)}, timing)
+    _write_outputs(diag, json, report, force, log)
+    return diag
+
+
+def _write_outputs(diag: Diagnosis, json: Any, report: Any, force: bool, log: Callable[[str], None]) -> None:
+    if report is not None:
+        from granseg.diagnosis.report import write_report
+
+        diag.report_path = str(write_report(diag, Path(report), force=force))
+        log(f"report: {diag.report_path}")
+    if json is not None:
+        save_json(json, diag.result, force=force)
+        log(f"json: {json}")

@@ -1,0 +1,51 @@
+"""The one fitting layer under calibration and diagnosis.
+
+* :mod:`~granseg.fitting.effects`: what an effect (a cause, or the baseline)
+  is, the registry of effects;
+* :mod:`~granseg.fitting.causes`: the catalogue of named causes, shared by
+  the diagnosis and the virtual campaigns of :mod:`granseg.synth`;
+* :mod:`~granseg.fitting.observe`: the observation step (time shift, model
+  layers, observation transform, the map's moving average, residual);
+* :mod:`~granseg.fitting.solve`: one bounded least squares with standard
+  errors, the factorial table, leave-one-experiment-out.
+
+``granseg.calibrate`` is the factorial table plus ``fit(data, Baseline())``;
+``granseg.diagnose`` starts from that calibration.
+"""
+
+from granseg.fitting import causes
+from granseg.fitting.effects import (
+    BASE_PARAMS,
+    REGISTRY,
+    Baseline,
+    Effect,
+    ExpInfo,
+    Param,
+    register,
+)
+from granseg.fitting.observe import DEFAULT_N_CELLS, Data, model_maps, residual, rmsd, shifted_times
+from granseg.fitting.solve import Fit, covariance, evaluate, factorial, fit, loo_params, loo_predict
+
+__all__ = [
+    "BASE_PARAMS",
+    "DEFAULT_N_CELLS",
+    "REGISTRY",
+    "Baseline",
+    "Data",
+    "Effect",
+    "ExpInfo",
+    "Fit",
+    "Param",
+    "causes",
+    "covariance",
+    "evaluate",
+    "factorial",
+    "fit",
+    "loo_params",
+    "loo_predict",
+    "model_maps",
+    "register",
+    "residual",
+    "rmsd",
+    "shifted_times",
+]
