@@ -84,9 +84,6 @@ class _Compaction(Effect):
     def observe(self, x: Mapping[str, float], exp: ExpInfo, layers: np.ndarray) -> np.ndarray:
         return layers + x["lag"] * (exp.c0 - layers)
 
-    def hidden(self, strength: float, exp: ExpInfo, settings: Mapping[str, float]) -> dict[str, float]:
-        return {"lag": strength}
-
 
 @pytest.fixture
 def toy_cause():

@@ -76,9 +76,6 @@ class LoadDependentShearBand(Effect):
         return (f"delta/H = {plus_minus(x['delta_over_H'], err.get('delta_over_H'))} x (M~/{M_TILDE_REF})"
                 f"^-({plus_minus(x['exponent'], err.get('exponent'))}), k = {plus_minus(x['k'], err.get('k'))}")
 
-    def hidden(self, strength: float, exp: ExpInfo, settings: Mapping[str, float]) -> dict[str, float]:
-        return {"exponent": strength}
-
 
 @register
 class EvolvingShearBand(Effect):
@@ -159,9 +156,6 @@ class SidewallExcess(Effect):
         return (f"c_wall = c + a c (1 - c), a = ({plus_minus(x['s'], err.get('s'))}) x M~/{M_TILDE_REF}; "
                 + super().law(x, err))
 
-    def hidden(self, strength: float, exp: ExpInfo, settings: Mapping[str, float]) -> dict[str, float]:
-        return {"s": strength}
-
 
 @register
 class MaterialFriction(Effect):
@@ -217,9 +211,6 @@ class SpinUpDelay(Effect):
     def law(self, x: Mapping[str, float], err: Mapping[str, float]) -> str:
         return (f"segregation starts {plus_minus(x['t_delay'], err.get('t_delay'))} s after the plate; "
                 + super().law(x, err))
-
-    def hidden(self, strength: float, exp: ExpInfo, settings: Mapping[str, float]) -> dict[str, float]:
-        return {"t_delay": strength}
 
 
 @register
@@ -278,9 +269,6 @@ class Misclassification(Effect):
 
     def observe(self, x: Mapping[str, float], exp: ExpInfo, layers: np.ndarray) -> np.ndarray:
         return x["f"] + (1.0 - 2.0 * x["f"]) * layers
-
-    def hidden(self, strength: float, exp: ExpInfo, settings: Mapping[str, float]) -> dict[str, float]:
-        return {"f": strength}
 
 
 def names(*, catalogued_only: bool = True) -> list[str]:

@@ -135,8 +135,14 @@ class Effect:
         """The extra parameters that hide this effect at ``strength`` in experiment ``exp``.
 
         ``settings`` are the campaign's ``effect_params`` (e.g. a time scale).
+        By default the strength is the value of the effect's one extra
+        parameter (none for the baseline); an effect with several, or with a
+        strength in other units, says how.
         """
-        return {}
+        extra = self.extra([exp])
+        if len(extra) > 1:
+            raise NotImplementedError(f"effect {self.name!r}: hidden() must say what a strength means")
+        return {p.name: strength for p in extra}
 
     def draw(self, rng: np.random.Generator) -> tuple[float, dict[str, float]]:
         """A random ``(strength, settings)`` a 16-experiment campaign can resolve."""
