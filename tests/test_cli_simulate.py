@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+import granseg.model
 from granseg.cli import main
 from granseg.maps import load_map
 
@@ -22,6 +23,11 @@ def test_simulate_prints_a_summary_and_writes_figure_and_map(tmp_path, capsys):
     m = load_map(npz)
     assert m.c.shape == (121, 15) and abs(m.delta_R - 3500 / 946) < 1e-12
     assert np.all((m.c >= 0) & (m.c <= 1))
+    # grain mass from the core's annulus area: phi_s A H rho_solid
+    p = granseg.model.defaults()
+    area = np.pi * (p["D_out"] ** 2 - p["D_in"] ** 2) / 4
+    assert m.M_g == pytest.approx(p["phi_s"] * area * p["H"] * (3500 * 0.75 + 946 * 0.25), rel=1e-12)
+    assert m.M_w == p["M_w"]
 
 
 def test_simulate_refuses_to_overwrite_and_names_bad_input(tmp_path, capsys):

@@ -115,6 +115,45 @@ def test_reader_names_file_and_field(tmp_path, field, value, pattern):
     assert str(path) in str(info.value)
 
 
+def test_a_zero_lid_load_is_rejected_naming_the_field(tmp_path):
+    # the core rejects M_w = 0 (no load, no overburden scale), so a map must not pass with it
+    f = fields()
+    f["M_w"] = 0.0
+    write_raw(tmp_path / "a.npz", **f)
+    with pytest.raises(MapFormatError, match="field 'M_w': value 0.0 outside") as info:
+        load_map(tmp_path / "a.npz")
+    assert str(tmp_path / "a.npz") in str(info.value)
+    with pytest.raises(MapFormatError, match="'M_w'"):
+        Map(**f)
+
+
+@pytest.mark.parametrize(
+    ("field", "value"),
+    [("rho_h", 0.0), ("rho_l", 0.0), ("rho_l", -1.0), ("c0", 0.0), ("c0", 1.0), ("M_w", 0.0),
+     ("M_w", -1.0), ("M_w", np.inf), ("rho_h", np.nan),
+     ("c0", 1e-9), ("c0", 1 - 1e-9), ("M_w", 1e-9), ("rho_h", 946.0), ("rho_l", 1e-9)],
+)
+def test_map_validation_agrees_with_the_core(field, value):
+    """The model parameters a map fixes are valid in the map exactly when the core accepts them."""
+    pytest.importorskip("granseg._core", reason="the Rust extension is not built (maturin develop)")
+    from granseg import model
+
+    f = fields()
+    f[field] = value
+    try:
+        model.derived(**{k: f[k] for k in ("rho_h", "rho_l", "c0", "M_w")})
+        core_ok = True
+    except ValueError:
+        core_ok = False
+    try:
+        Map(**f)
+        map_ok = True
+    except MapFormatError as exc:
+        map_ok = False
+        assert f"'{field}'" in str(exc)
+    assert map_ok == core_ok or (not map_ok and field == "rho_h" and value < f["rho_l"])
+
+
 def test_map_built_in_code_is_validated():
     f = fields()
     f["c"] = f["c"] * 2

@@ -241,3 +241,22 @@ def test_velocity_profile_follows_model_md():
     d = granseg.model.derived()
     assert abs(v[0] - d["v0"]) < 1e-12 and abs(d["v0"] - 0.2331900) < 1e-6
     assert abs(g[0] - d["v0"] / (0.18 * 0.09)) < 1e-9
+
+
+def test_the_pure_python_constants_are_the_cores():
+    from granseg import constants, model
+
+    p = granseg.defaults()
+    assert constants.D_P == p["D_p"]
+    assert model.N_LAYERS == constants.N_LAYERS
+    assert constants.N_LAYERS * constants.D_P == pytest.approx(p["H"], rel=1e-12)
+
+
+def test_the_frame_pipeline_does_not_load_the_solver():
+    import subprocess
+    import sys
+
+    code = ("import sys, granseg.measure, granseg.measure.pipeline, granseg.maps, granseg.synth.frames; "
+            "assert 'granseg._core' not in sys.modules and 'granseg.model' not in sys.modules, "
+            "sorted(m for m in sys.modules if m.startswith('granseg'))")
+    subprocess.run([sys.executable, "-c", code], check=True)

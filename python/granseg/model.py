@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 
 from granseg import _core
+from granseg.constants import N_LAYERS
 from granseg.errors import SolverError
 
 __all__ = [
@@ -38,7 +39,6 @@ _DEFAULTS: dict[str, float] = dict(_core.defaults())
 PARAMETERS: tuple[str, ...] = tuple(sorted(_DEFAULTS))
 RTOL, ATOL = _core.default_tolerances()
 N_CELLS = 180
-N_LAYERS = 15
 
 
 def defaults() -> dict[str, float]:

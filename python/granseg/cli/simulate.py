@@ -125,15 +125,13 @@ def _summary(args, sol, layers, steady, bottom, elapsed) -> None:
 
 def _write_npz(args, sol, layers) -> None:
     from granseg.maps import save_map
+    from granseg.model import derived
 
     p = sol.params
     n = layers.shape[1]
+    area = derived(**p)["A"]  # annulus area, m^2, from the core
+    rho_solid = p["rho_h"] * p["c0"] + p["rho_l"] * (1 - p["c0"])
     save_map(args.npz, c=layers, t=sol.t, z=(np.arange(n) + 0.5) * p["H"] / n,
              name="simulation", heavy=args.heavy, light=args.light, rho_h=p["rho_h"],
-             rho_l=p["rho_l"], c0=p["c0"],
-             M_g=p["phi_s"] * granseg_area(p) * p["H"] * (p["rho_h"] * p["c0"] + p["rho_l"] * (1 - p["c0"])),
+             rho_l=p["rho_l"], c0=p["c0"], M_g=p["phi_s"] * area * p["H"] * rho_solid,
              M_w=p["M_w"], force=args.force)
-
-
-def granseg_area(p: dict[str, float]) -> float:
-    return float(np.pi * (p["D_out"] ** 2 - p["D_in"] ** 2) / 4)

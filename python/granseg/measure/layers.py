@@ -4,9 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from granseg.constants import N_LAYERS
+
 __all__ = ["N_LAYERS", "WALL_CLEARANCE", "clear_of_walls", "height", "in_window", "layer_index", "layer_counts"]
 
-N_LAYERS = 15
 # A free sphere's centre lies at least half a diameter from the lid and the
 # plate (more between the bumps). The hemispheres fixed to both walls, one
 # diameter across, are centred on the wall line: seen from the side, their

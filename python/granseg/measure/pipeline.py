@@ -15,6 +15,7 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
+from granseg.constants import D_P
 from granseg.measure.camera import Undistorter
 from granseg.measure.classify import (
     MaterialClasses,
@@ -448,15 +449,8 @@ def _assemble(spheres, exp, fps, smooth, names, bad) -> Analysis:
     c = moving_average(c_raw, smooth, axis=0)
     c[~np.isfinite(c_raw)] = np.nan
     t = exp.t0 + np.arange(n_t) / fps
-    z = (np.arange(N_LAYERS) + 0.5) * _particle_diameter_m()
+    z = (np.arange(N_LAYERS) + 0.5) * D_P
     return Analysis(c, c_raw, n, nh, t, z, smooth, exp, names, spheres, bad)
-
-
-def _particle_diameter_m() -> float:
-    """D_p [m] from the model's parameters (MODEL.md), the one source of truth."""
-    import granseg
-
-    return float(granseg.defaults()["D_p"])
 
 
 def _save(result: Analysis, out: Path, force: bool, fps: float) -> Path:
