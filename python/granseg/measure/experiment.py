@@ -40,6 +40,11 @@ class Experiment(Conditions):
         return dict(name=self.name, heavy=self.heavy, light=self.light, rho_h=self.rho_h,
                     rho_l=self.rho_l, c0=self.c0, M_g=self.M_g, M_w=self.M_w)
 
+    def crop_origin(self) -> tuple[int, int]:
+        """Top-left corner [px] of the undistorted crop the frames are analysed in: the window and a diameter."""
+        m = int(np.ceil(self.particle_diameter_px))
+        return int(np.floor(self.window[0])) - m, int(np.floor(self.window[1])) - m
+
 
 def load_experiment(path: str | os.PathLike) -> Experiment:
     """Read ``experiment.json`` at ``path``; ValueError names the file and the bad field."""

@@ -15,7 +15,9 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
+from granseg._io import atomic_path, check_writable
 from granseg.constants import D_P
+from granseg.maps import moving_average, save_map
 from granseg.measure.camera import Undistorter
 from granseg.measure.classify import (
     MaterialClasses,
@@ -34,6 +36,7 @@ from granseg.measure.layers import (
     layer_counts,
     layer_index,
 )
+from granseg.measure.preview import write_previews
 from granseg.measure.quality import Quality, QualityWarning, assess
 from granseg.measure.sources import BadFrame, FrameDirectory, VideoFrames, open_frames
 from granseg.measure.wall import remove_wall_glare
@@ -139,8 +142,6 @@ def analyze(
     spheres becomes a NaN row with a :class:`BadFrameWarning`; bad input
     files or fields raise ValueError / FileNotFoundError naming them.
     """
-    from granseg._io import check_writable
-
     if isinstance(smooth, bool) or not isinstance(smooth, int | np.integer) or smooth < 1 or smooth % 2 == 0:
         raise ValueError(f"smooth: expected an odd number of frames >= 1 (1 = none), got {smooth!r}")
     source, exp_path = open_frames(path)
@@ -172,8 +173,6 @@ def analyze(
             log.warning("%s exists; no quality preview written (use --force or --preview DIR)", preview)
             preview = None
     if preview is not None:
-        from granseg.measure.preview import write_previews
-
         result.previews = write_previews(Path(preview), result, crops, force)
     return result
 
@@ -202,7 +201,7 @@ class _FrameWorker:
     def __init__(self, exp: Experiment, image_size: tuple[int, int]):
         x0, y0, x1, y1 = exp.window
         m = int(np.ceil(exp.particle_diameter_px))
-        self.crop = (*_crop_origin(exp), int(np.ceil(x1)) + m, int(np.ceil(y1)) + m)
+        self.crop = (*exp.crop_origin(), int(np.ceil(x1)) + m, int(np.ceil(y1)) + m)
         self.bed_rows = (int(np.ceil(y0)) - self.crop[1], int(np.floor(y1)) - self.crop[1])  # in the crop
         self.exp, self.size = exp, image_size
         self.undistort = Undistorter(exp.camera_matrix, exp.dist_coeffs, image_size, self.crop)
@@ -361,7 +360,7 @@ def _classify(spheres: list[FrameSpheres | None], exp: Experiment,
     first = spheres[i0]
     augmented = []
     if i0 in crops:  # the first frame's image: its spheres also learned as if smeared by motion
-        ox, oy = _crop_origin(exp)
+        ox, oy = exp.crop_origin()
         centres = np.column_stack([first.x - ox, first.y - oy])
         augmented = smeared_features(crops[i0], centres, exp.particle_diameter_px)
     try:
@@ -372,12 +371,6 @@ def _classify(spheres: list[FrameSpheres | None], exp: Experiment,
         s.p_heavy = classes.p_heavy(s.features)
         s.heavy = s.p_heavy > 0.5
     return classes
-
-
-def _crop_origin(exp: Experiment) -> tuple[int, int]:
-    """Top-left corner [px] of the undistorted crop the frames are analysed in: the window and a diameter."""
-    m = int(np.ceil(exp.particle_diameter_px))
-    return int(np.floor(exp.window[0])) - m, int(np.floor(exp.window[1])) - m
 
 
 def _assess(result: Analysis) -> Quality:
@@ -413,8 +406,6 @@ def write_detections(path: str | os.PathLike, result: Analysis, force: bool = Fa
     """
     import csv
 
-    from granseg._io import atomic_path
-
     path = Path(path)
     with atomic_path(path, force=force, suffix=".csv") as tmp, open(tmp, "w", newline="", encoding="utf-8") as f:
         w = csv.writer(f)
@@ -434,8 +425,6 @@ def write_detections(path: str | os.PathLike, result: Analysis, force: bool = Fa
 
 
 def _assemble(spheres, exp, fps, smooth, names, bad) -> Analysis:
-    from granseg.maps import moving_average
-
     n_t = len(spheres)
     n = np.zeros((n_t, N_LAYERS), dtype=np.int64)
     nh = np.zeros((n_t, N_LAYERS), dtype=np.int64)
@@ -454,8 +443,6 @@ def _assemble(spheres, exp, fps, smooth, names, bad) -> Analysis:
 
 
 def _save(result: Analysis, out: Path, force: bool, fps: float) -> Path:
-    from granseg.maps import save_map
-
     return save_map(out, c=result.c, t=result.t, z=result.z, **result.experiment.metadata(),
                     n=result.n, n_heavy=result.n_heavy, c_raw=result.c_raw, fps=fps,
                     smoothing_frames=result.smoothing_frames, quality=result.quality.to_json(), force=force)

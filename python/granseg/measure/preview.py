@@ -8,6 +8,8 @@ from typing import Any
 import cv2
 import numpy as np
 
+from granseg._io import atomic_path
+from granseg.measure.classify import AMBIGUOUS
 from granseg.measure.layers import N_LAYERS
 
 __all__ = ["draw_preview", "write_previews"]
@@ -22,8 +24,6 @@ HEADER_PX = 54  # band above the image for the frame's caption
 
 def write_previews(directory: Path, result: Any, crops: dict[int, np.ndarray], force: bool) -> list[Path]:
     """Write ``preview_<frame>.png`` for each kept frame into ``directory`` (created if needed)."""
-    from granseg._io import atomic_path
-
     directory.mkdir(parents=True, exist_ok=True)
     written = []
     for i in sorted(crops):
@@ -43,9 +43,7 @@ def write_previews(directory: Path, result: Any, crops: dict[int, np.ndarray], f
 def draw_preview(crop: np.ndarray, result: Any, i: int) -> np.ndarray:
     """The undistorted crop of frame ``i`` with spheres circled by class, layer lines and counts."""
     exp = result.experiment
-    from granseg.measure.pipeline import _crop_origin
-
-    ox, oy = _crop_origin(exp)
+    ox, oy = exp.crop_origin()
     scale = max(1.0, 700.0 / crop.shape[0])
     img = cv2.resize(crop, None, fx=scale, fy=scale, interpolation=cv2.INTER_LINEAR)
     img = (img * 0.85).astype(np.uint8)
@@ -56,8 +54,6 @@ def draw_preview(crop: np.ndarray, result: Any, i: int) -> np.ndarray:
         yy = y1 - j * (y1 - y0) / N_LAYERS
         cv2.line(img, to_px(x0, yy), to_px(x1, yy), (230, 230, 230), 1, cv2.LINE_AA)
     cv2.rectangle(img, to_px(x0, y0), to_px(x1, y1), (255, 255, 255), 2, cv2.LINE_AA)
-    from granseg.measure.classify import AMBIGUOUS
-
     p = s.p_heavy if s.p_heavy is not None else np.where(s.heavy, 1.0, 0.0)
     for x, y, r, h, ph in zip(s.x, s.y, s.r, s.heavy, p, strict=True):
         colour = AMBIGUOUS_BGR if AMBIGUOUS[0] < ph < AMBIGUOUS[1] else HEAVY_BGR if h else LIGHT_BGR

@@ -33,6 +33,8 @@ from typing import Any
 import cv2
 import numpy as np
 
+from granseg._io import atomic_path, save_json
+
 __all__ = ["MATERIAL_LOOKS", "VIDEO_CODECS", "RenderedFrames", "default_camera", "render_frames",
            "render_checkerboard"]
 
@@ -925,6 +927,7 @@ def _experiment(heavy, light, cmap, k_mat, dist, win, d, fps, extra) -> dict[str
 def _densities(heavy: str, light: str) -> tuple[float, float]:
     """Solid densities [kg/m^3] of the two materials (looks name theirs), from the model's table."""
     try:
+        # lazy on purpose: rendering frames must run without the compiled solver
         from granseg.model import MATERIALS
 
         table = {k.lower(): float(v) for k, v in MATERIALS.items()}
@@ -937,8 +940,6 @@ def _densities(heavy: str, light: str) -> tuple[float, float]:
 
 
 def _write(result: RenderedFrames, out: Path, jpeg_quality: int | None, force: bool) -> list[Path]:
-    from granseg._io import atomic_path, save_json
-
     out.mkdir(parents=True, exist_ok=True)
     ext = ".png" if jpeg_quality is None else ".jpg"
     params = [] if jpeg_quality is None else [cv2.IMWRITE_JPEG_QUALITY, 100]
@@ -962,8 +963,6 @@ def _video(result: RenderedFrames, app: dict[str, Any], out_dir, force: bool) ->
             path = Path(tmp) / "video.mp4"
             _encode(result.images, path, app["video"], app["bitrate"])
             return _decode(path, len(result.images)), []
-    from granseg._io import atomic_path, save_json
-
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     path = out / "video.mp4"

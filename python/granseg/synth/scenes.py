@@ -42,6 +42,8 @@ from typing import Any
 
 import numpy as np
 
+from granseg.synth.frames import render_frames
+
 __all__ = ["APPARATUS_SCENES", "MIXTURE_SCENES", "SCENES", "WIDE_ANGLE", "mixing_map", "render_scene",
            "scene_names"]
 
@@ -135,8 +137,6 @@ def mixing_map(n_t: int, n_layers: int = 15, c0: float = 0.5) -> np.ndarray:
 def render_scene(name: str, n_t: int = 6, **overrides: Any):
     """Render the named scene (any group) over ``mixing_map(n_t, c0=...)``; ``overrides`` are
     render_frames keyword arguments (seed, out_dir, image_size, ...) and may set ``c0``."""
-    from granseg.synth.frames import render_frames
-
     for group in (SCENES, MIXTURE_SCENES, APPARATUS_SCENES):
         if name in group:
             look = {**group[name], **overrides}
