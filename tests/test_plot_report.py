@@ -165,3 +165,41 @@ def test_report_in_headless_browser(report_dir, tmp_path):
     img = mpimg.imread(shot)
     assert img.shape[:2] == (2400, 1280)
     assert np.unique((img[..., :3] * 255).astype(np.uint8).reshape(-1, 3), axis=0).shape[0] > 100
+
+
+def test_one_output_guard(tmp_path):
+    from granseg._io import prepare_output_dir
+
+    out = prepare_output_dir(tmp_path / "rep", ["index.html", "figures"], folders=["figures"])
+    assert (out / "figures").is_dir()  # made once all checks pass
+    with pytest.raises(OutputExistsError, match="figures"):
+        prepare_output_dir(out, ["index.html", "figures"])
+    assert prepare_output_dir(out, ["index.html", "figures"], force=True) == out
+    (tmp_path / "file").write_text("mine")
+    with pytest.raises(NotADirectoryError):
+        prepare_output_dir(tmp_path / "file", ["index.html"], force=True)
+    with pytest.raises(FileNotFoundError):
+        prepare_output_dir(tmp_path / "missing" / "rep", ["index.html"], force=True)
+    assert not (tmp_path / "missing").exists()
+
+
+def test_both_pages_share_the_html_pieces(report_dir):
+    from granseg.report import diagnosis, html
+
+    out = report_dir.parent
+    png = next((out / "figures").glob("*.png"))
+    figs = [{"id": "gain", "caption": "RMSD <per> experiment", "png": f"figures/{png.name}",
+             "pdf": "figures/gain.pdf"}]
+    cand = {"name": "spin_up_delay", "law": "t -> t - 12 s", "rmsd": 0.05, "rmsd_held_out": 0.06,
+            "gain_held_out": 0.001}
+    doc = {"cause": "none", "explained": False, "summary": "No cause beats the noise.", "noise_floor": 0.04,
+           "noise": {"method": "counts"}, "decision": {"reason": "no gain beyond the threshold"},
+           "baseline": {"params": {"k": 0.6, "delta_over_H": 0.2}, "rmsd_mean": 0.0512,
+                        "rmsd_held_out_mean": 0.0534},
+           "candidates": [cand]}
+    pages = [report_dir.read_text(), diagnosis.render(doc, figs, out)]
+    for text in pages:
+        assert f"<style>{html.CSS}</style><script>{html.SCRIPT}</script>" in text
+        assert text.startswith("<!DOCTYPE html>") and '<div class="scroll"><table>' in text
+    assert pages[1].count('<img class="fig"') == 1 and 'href="figures/gain.pdf"' in pages[1]
+    assert "RMSD &lt;per&gt; experiment" in pages[1] and "0.0512" in pages[1] and "+0.0010" in pages[1]

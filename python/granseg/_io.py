@@ -12,7 +12,7 @@ import contextlib
 import json
 import os
 import tempfile
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -25,6 +25,7 @@ __all__ = [
     "atomic_write",
     "atomic_path",
     "check_writable",
+    "prepare_output_dir",
     "save_json",
     "save_npz",
 ]
@@ -46,6 +47,28 @@ def check_writable(path: str | os.PathLike, force: bool = False) -> Path:
     if not p.parent.exists():
         raise FileNotFoundError(f"{p.parent}: output folder does not exist")
     return p
+
+
+def prepare_output_dir(out: str | os.PathLike, names: Sequence[str], force: bool = False, *,
+                       folders: Sequence[str] = ()) -> Path:
+    """Return folder ``out`` as a Path, ready for outputs ``names`` (files or folders in it).
+
+    Raises NotADirectoryError if ``out`` is a file, FileNotFoundError if its
+    parent does not exist, and OutputExistsError if any of ``names`` exists
+    and ``force`` is false; nothing is created until all checks pass. Then
+    ``out`` and its sub-folders ``folders`` are made.
+    """
+    out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise NotADirectoryError(f"{out}: exists and is not a directory")
+    if not out.parent.exists():
+        raise FileNotFoundError(f"{out.parent}: output folder does not exist")
+    clash = [n for n in names if (out / n).exists()]
+    if clash and not force:
+        raise OutputExistsError(f"{out}: already holds {clash}; pass force=True (CLI: --force)")
+    for sub in (".", *folders):
+        (out / sub).mkdir(exist_ok=True)
+    return out
 
 
 @contextlib.contextmanager

@@ -181,7 +181,7 @@ def diagnose(
 
 def _write_outputs(diag: Diagnosis, json: Any, report: Any, force: bool, log: Callable[[str], None]) -> None:
     if report is not None:
-        from granseg.diagnosis.report import write_report
+        from granseg.report.diagnosis import write_report
 
         diag.report_path = str(write_report(diag, Path(report), force=force))
         log(f"report: {diag.report_path}")

@@ -1,8 +1,9 @@
-"""Render the report's JSON document as one self-contained HTML page.
+"""The HTML pieces both report pages are made of: style, script, numbers, tables, figures.
 
-Every number on the page is read from the document :func:`render` gets, and
-the figures are embedded as base64 PNG (each with a link to its PDF beside
-the page). A small inline script counts the figures the browser decoded and
+A page is :func:`page` (title + body, with :data:`CSS` and :data:`SCRIPT`);
+its figures are saved by :func:`save_figures` (PNG + PDF beside the page) and
+embedded by :func:`figures` as base64 PNG, each with links to its files, so
+the page opens offline. The script counts the figures the browser decoded and
 writes the count into ``<body data-figures-loaded="N/M">`` so that a headless
 browser test can see what a user would.
 """
@@ -11,11 +12,15 @@ from __future__ import annotations
 
 import base64
 import html
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-__all__ = ["render"]
+from matplotlib.figure import Figure
+
+from granseg.plot.base import save_figure
+
+__all__ = ["CSS", "SCRIPT", "esc", "num", "pm", "table", "figures", "save_figures", "page"]
 
 CSS = """
 body{font:15px/1.45 system-ui,-apple-system,"Segoe UI",sans-serif;color:#1d1d1f;margin:0;background:#fafafa}
@@ -28,6 +33,7 @@ td.l,th.l{text-align:left}tr.best td{background:#e4f0ff;font-weight:600}
 .scroll{overflow-x:auto}
 figure{margin:1.2em 0}figure img{max-width:100%;height:auto;border:1px solid #eee}
 figcaption{font-size:.9em;color:#444}.key{font-size:1.05em}.warn{color:#a33}
+.verdict{font-size:1.2em;padding:.6em;background:#eef5ee;border-left:4px solid #009E73}
 """
 
 SCRIPT = """
@@ -39,24 +45,28 @@ window.addEventListener('load', function () {
 """
 
 
-def _e(x: Any) -> str:
+def esc(x: Any) -> str:
+    """``x`` as text, HTML-escaped."""
     return html.escape(str(x))
 
 
-def _num(x: Any, fmt: str = ".4g") -> str:
+def num(x: Any, fmt: str = ".4g") -> str:
+    """A number in format ``fmt``; a dash for None or NaN; other values escaped."""
     if x is None:
         return "&ndash;"
     if isinstance(x, float) and x != x:
         return "&ndash;"
-    return format(x, fmt) if isinstance(x, int | float) else _e(x)
+    return format(x, fmt) if isinstance(x, int | float) else esc(x)
 
 
-def _pm(value: Any, err: Any, fmt: str = ".4g") -> str:
-    return f"{_num(value, fmt)} &plusmn; {_num(err, '.2g')}"
+def pm(value: Any, err: Any, fmt: str = ".4g") -> str:
+    """``value +- err`` (the error to two significant digits)."""
+    return f"{num(value, fmt)} &plusmn; {num(err, '.2g')}"
 
 
-def _table(head: Sequence[str], rows: Iterable[Sequence[str]], classes: Sequence[str] = (),
-           left: int = 1) -> str:
+def table(head: Sequence[str], rows: Iterable[Sequence[str]], classes: Sequence[str] = (),
+          left: int = 1) -> str:
+    """A scrollable table of HTML cells; the first ``left`` columns left-aligned, ``classes`` per row."""
     th = "".join(f'<th class="{"l" if i < left else ""}">{h}</th>' for i, h in enumerate(head))
     body = []
     for n, row in enumerate(rows):
@@ -66,113 +76,39 @@ def _table(head: Sequence[str], rows: Iterable[Sequence[str]], classes: Sequence
     return f'<div class="scroll"><table><tr>{th}</tr>{"".join(body)}</table></div>'
 
 
-# --------------------------------------------------------------------------- sections
+def save_figures(figs: Sequence[tuple[str, str, Figure]], out: Path, *, force: bool = False,
+                 log: Callable[[str], None] | None = None) -> list[dict[str, str]]:
+    """Save each ``(stem, caption, figure)`` as ``out/figures/STEM.png`` and ``.pdf``.
+
+    Returns the page's figure list: id, caption and the files relative to ``out``.
+    """
+    entries = []
+    for n, (stem, caption, fig) in enumerate(figs, 1):
+        png, pdf = save_figure(fig, out / "figures" / stem, force=force)
+        entries.append({"id": stem, "caption": caption, "png": f"figures/{png.name}",
+                        "pdf": f"figures/{pdf.name}"})
+        if log is not None:
+            log(f"figure {n}/{len(figs)}: {png.name}")
+    return entries
 
 
-def _summary(d: Mapping[str, Any]) -> str:
-    cal = d["calibration"]
-    rows = [[_e(k), _pm(cal["best"][k], cal["stderr"][k])] for k in cal["best"]]
-    rows.append(["mean RMSD at the optimum", _num(cal["rmsd_mean"], ".4f")])
-    state = "refined by bounded least squares" if cal["refined"] else "best grid point (no refinement)"
-    warn = "" if cal["converged"] else f'<p class="warn">Refinement did not converge: {_e(cal["message"])}</p>'
-    s = cal["settings"]
-    for k in cal.get("at_bound", []):
-        warn += (f'<p class="warn">{_e(k)} ended on a bound of its range {_e(str(s["bounds"][k]))}: '
-                 "the optimum may lie beyond it (widen the bounds).</p>")
-    return (f"<h2>Calibrated parameters</h2><p class='key'>Optimum {state} "
-            f"(&plusmn; one standard error from the Jacobian).</p>{warn}"
-            + _table(["parameter", "value"], rows)
-            + f"<p class='meta'>{_num(s.get('n_runs'))} model runs in {_num(s.get('n_sweeps'))} sweeps, "
-              f"{_num(cal['elapsed_s'], '.1f')} s.</p>")
-
-
-def _experiments(d: Mapping[str, Any]) -> str:
-    cal, tanh = d["calibration"], d["fits"]["tanh"]
-    head = ["experiment", "heavy / light", "&delta;<sub>R</sub>", "c<sub>0</sub>", "M<sub>g</sub> [kg]",
-            "M&#771; [-]", "frames", "smoothing", "RMSD", "A [-]", "t<sub>0</sub> [s]", "&tau; [s]"]
-    rows = []
-    for x in d["experiments"]:
-        f = tanh.get(x["name"])
-        fit_cells = ["&ndash;"] * 3 if f is None else [
-            _pm(f["params"][k], f["stderr"][k], ".3g") + ("" if f["converged"] else " *")
-            for k in ("A", "t0", "tau")]
-        rows.append([_e(x["name"]), f"{_e(x['heavy'])} / {_e(x['light'])}", _num(x["delta_R"], ".3g"),
-                     _num(x["c0"], ".3g"), _num(x["M_g"], ".3g"), _num(x["M_tilde"], ".3g"),
-                     _num(x["n_times"]), _num(x["smoothing_frames"]),
-                     _num(cal["rmsd"].get(x["name"]), ".3f"), *fit_cells])
-    return ("<h2>Experiments</h2><p>RMSD of each experiment at the calibrated optimum; "
-            "A, t<sub>0</sub>, &tau; from the tanh fit of the bottom layer "
-            "(* = fit not converged).</p>" + _table(head, rows, left=2))
-
-
-def _factorial(d: Mapping[str, Any]) -> str:
-    cal = d["calibration"]
-    names = [x["name"] for x in d["experiments"]]
-    keys = list(cal["best"])
-    grid = cal["grid"]
-    best = min(range(len(grid)), key=lambda i: grid[i]["rmsd_mean"])
-    rows = [[str(i + 1), *(_num(g[k]) for k in keys), *(_num(g["rmsd"][n], ".3f") for n in names),
-             _num(g["rmsd_mean"], ".3f")] for i, g in enumerate(grid)]
-    classes = ["best" if i == best else "" for i in range(len(grid))]
-    return ("<h2>Full factorial design</h2><p>RMSD of every experiment for every run; "
-            "the highlighted row has the lowest mean.</p>"
-            + _table(["ID", *map(_e, keys), *map(_e, names), "mean"], rows, classes))
-
-
-def _per_experiment(d: Mapping[str, Any]) -> str:
-    per = d["calibration"].get("per_experiment")
-    if not per:
-        return ""
-    keys = list(d["calibration"]["best"])
-    rows = [[_e(n), *(_pm(p["best"][k], p["stderr"][k]) for k in keys), _num(p["rmsd"], ".3f"),
-             "yes" if p["converged"] else "no"] for n, p in per.items()]
-    return ("<h2>Each experiment's own optimum</h2>"
-            + _table(["experiment", *map(_e, keys), "RMSD", "converged"], rows))
-
-
-def _laws(d: Mapping[str, Any]) -> str:
-    f = d["fits"]
-    parts = ["<h2>Bottom-concentration laws</h2>"]
-    sel = ", ".join(map(_e, f["selected"])) or "none"
-    parts.append(f"<p>Experiments used (c<sub>0</sub> = {_num(f['c0'])}): {sel}.</p>")
-    rows = []
-    for key, label in (("beta", "A = 1 &minus; 1/(2 &delta;<sub>R</sub><sup>&beta;</sup>)"),
-                       ("tau", "&tau; = &tau;<sub>1</sub> exp(&minus;&lambda;(&delta;<sub>R</sub> &minus; 1))")):
-        law = f[key]
-        if law is None:
-            rows.append([label, "not fitted", "&ndash;"])
-            continue
-        pars = ", ".join(f"{_e(k)} = {_pm(v, law['stderr'][k])}" for k, v in law["params"].items())
-        rows.append([label, pars, _num(law["mse"], ".3g")])
-    parts.append(_table(["law", "parameters", "MSE"], rows, left=2))
-    parts += [f"<p class='warn'>{_e(n)}</p>" for n in f["notes"]]
-    return "".join(parts)
-
-
-def _figures(d: Mapping[str, Any], out: Path) -> str:
-    parts = ["<h2>Figures</h2>"]
-    for n, fig in enumerate(d["figures"], 1):
+def figures(entries: Sequence[Mapping[str, str]], out: Path, heading: str = "Figures") -> str:
+    """A section of numbered figures (entries of :func:`save_figures`), PNGs read from ``out``."""
+    parts = [f"<h2>{esc(heading)}</h2>"]
+    for n, fig in enumerate(entries, 1):
         raw = (out / fig["png"]).read_bytes()
         width = int.from_bytes(raw[16:20], "big") // 2  # PNG IHDR width; shown at 2x density
         data = base64.b64encode(raw).decode("ascii")
         parts.append(
-            f'<figure id="{_e(fig["id"])}"><img class="fig" width="{width}" alt="{_e(fig["caption"])}" '
-            f'src="data:image/png;base64,{data}"><figcaption>Figure {n}. {_e(fig["caption"])} '
-            f'(<a href="{_e(fig["pdf"])}">PDF</a>, <a href="{_e(fig["png"])}">PNG</a>)</figcaption></figure>')
+            f'<figure id="{esc(fig["id"])}"><img class="fig" width="{width}" alt="{esc(fig["caption"])}" '
+            f'src="data:image/png;base64,{data}"><figcaption>Figure {n}. {esc(fig["caption"])} '
+            f'(<a href="{esc(fig["pdf"])}">PDF</a>, <a href="{esc(fig["png"])}">PNG</a>)</figcaption></figure>')
     return "".join(parts)
 
 
-def render(data: Mapping[str, Any], out: Path) -> str:
-    """The HTML page of report document ``data``; figure files are read from ``out``."""
-    title = f"granseg calibration: {Path(data['campaign']).name or data['campaign']}"
-    body = "".join([
-        f"<h1>{_e(title)}</h1><p class='meta'>{len(data['experiments'])} experiments from "
-        f"{_e(data['campaign'])}; granseg {_e(data['granseg_version'])}, {_e(data['created'])}. "
-        "All numbers are in report.json beside this page.</p>",
-        _summary(data), _experiments(data), _factorial(data), _per_experiment(data), _laws(data),
-        _figures(data, out),
-    ])
+def page(title: str, body: str) -> str:
+    """The whole HTML document: ``title`` (plain text) and ``body`` (HTML) in granseg's style."""
     return (f'<!DOCTYPE html><html lang="en"><head><meta charset="utf-8">'
             f'<meta name="viewport" content="width=device-width,initial-scale=1">'
-            f"<title>{_e(title)}</title><style>{CSS}</style><script>{SCRIPT}</script></head>"
+            f"<title>{esc(title)}</title><style>{CSS}</style><script>{SCRIPT}</script></head>"
             f"<body><main>{body}</main></body></html>\n")

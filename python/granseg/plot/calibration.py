@@ -1,116 +1,37 @@
-"""Publication figures of a calibration (matplotlib, headless, PNG + PDF).
-
-Every function builds and returns a :class:`matplotlib.figure.Figure`
-without pyplot (no GUI, no global state, Agg canvas), in one consistent
-style; :func:`save_figure` writes it as ``STEM.png`` and ``STEM.pdf``
-atomically, refusing to replace existing files unless ``force``.
+"""Figures of a campaign's calibration and of one model run.
 
 Maps are drawn as the paper draws them: time t [s] on x, dimensionless
 height H* = z / H on y, the initial profile c(H*, 0) in a panel at the left.
 
 Example::
 
-    >>> fig = bottom_fits(campaign, fits.tanh)                  # doctest: +SKIP
-    >>> save_figure(fig, "out/bottom")                          # doctest: +SKIP
-    [PosixPath('out/bottom.png'), PosixPath('out/bottom.pdf')]
+    >>> fig = map_comparison(campaign[0], cal.model_layers[0], H=0.06)  # doctest: +SKIP
 """
 
 from __future__ import annotations
 
-import contextlib
-import os
-from collections.abc import Iterator, Mapping, Sequence
-from pathlib import Path
+from collections.abc import Mapping, Sequence
 from typing import Any
 
-import matplotlib
 import numpy as np
 from matplotlib.figure import Figure
 
-from granseg._io import atomic_path, check_writable
 from granseg.fit import FitResult, beta_law, tanh_curve, tau_law
+from granseg.plot.base import (
+    C_LABEL,
+    H_LABEL,
+    T_LABEL,
+    edges,
+    map_edges,
+    new_figure,
+    style,
+    time_edges,
+)
 
-__all__ = [
-    "STYLE",
-    "style",
-    "save_figure",
-    "map_comparison",
-    "bottom_fits",
-    "laws",
-    "rmsd_grid",
-    "profiles",
-    "simulation",
-]
-
-STYLE: dict[str, Any] = {
-    "font.size": 8.5,
-    "axes.labelsize": 9,
-    "axes.titlesize": 9,
-    "legend.fontsize": 7.5,
-    "xtick.labelsize": 8,
-    "ytick.labelsize": 8,
-    "axes.spines.top": False,
-    "axes.spines.right": False,
-    "axes.linewidth": 0.8,
-    "lines.linewidth": 1.4,
-    "lines.markersize": 4,
-    "legend.frameon": False,
-    "figure.dpi": 100,
-    "savefig.dpi": 220,
-    "savefig.bbox": "tight",
-    "savefig.pad_inches": 0.03,
-    "pdf.fonttype": 42,
-    "image.cmap": "viridis",
-    "axes.prop_cycle": matplotlib.cycler(color=[
-        "#0072B2", "#D55E00", "#009E73", "#CC79A7", "#E69F00", "#56B4E9", "#F0E442", "#000000",
-    ]),
-}
-C_LABEL = "heavy concentration c [-]"
-T_LABEL = "time t [s]"
-H_LABEL = r"height $H^* = z/H$ [-]"
-
-
-@contextlib.contextmanager
-def style() -> Iterator[None]:
-    """Context in which figures get granseg's style (rcParams of :data:`STYLE`)."""
-    with matplotlib.rc_context(STYLE):
-        yield
-
-
-def _figure(width: float, height: float) -> Figure:
-    """A new figure in inches, constrained layout (call inside :func:`style`)."""
-    return Figure(figsize=(width, height), layout="constrained")
-
-
-def save_figure(fig: Figure, stem: str | os.PathLike, *, force: bool = False) -> list[Path]:
-    """Write ``fig`` to ``STEM.png`` and ``STEM.pdf`` atomically; return both paths.
-
-    Both destinations are checked before anything is written, so an existing
-    file (without ``force``) leaves neither half written.
-    """
-    stem = Path(stem)
-    paths = [stem.with_name(stem.name + ext) for ext in (".png", ".pdf")]
-    for p in paths:
-        check_writable(p, force)
-    with style():
-        for p in paths:
-            with atomic_path(p, force=force) as tmp:
-                fig.savefig(tmp, format=p.suffix[1:])
-    return paths
+__all__ = ["map_comparison", "bottom_fits", "laws", "rmsd_grid", "profiles", "simulation"]
 
 
 # --------------------------------------------------------------------------- maps
-
-
-def _edges(x: np.ndarray, lo: float | None = None, hi: float | None = None) -> np.ndarray:
-    """Cell edges around centres ``x`` (midpoints; ends extended by half a step)."""
-    x = np.asarray(x, dtype=float)
-    if x.size == 1:
-        return np.array([x[0] - 0.5, x[0] + 0.5])
-    mid = 0.5 * (x[1:] + x[:-1])
-    first = x[0] - (mid[0] - x[0]) if lo is None else lo
-    last = x[-1] + (x[-1] - mid[-1]) if hi is None else hi
-    return np.concatenate([[first], mid, [last]])
 
 
 def map_comparison(measured: Any, model: np.ndarray, *, H: float, rmsd: float | None = None,
@@ -128,10 +49,9 @@ def map_comparison(measured: Any, model: np.ndarray, *, H: float, rmsd: float | 
         raise ValueError(f"model map shape {model.shape} != measured {measured.c.shape} ({measured.name})")
     resid = measured.c - model
     with style():
-        fig = _figure(7.2, 2.4)
+        fig = new_figure(7.2, 2.4)
         axes = fig.subplots(1, 4, sharey=True, gridspec_kw={"width_ratios": [0.32, 1, 1, 1]})
-        te = _edges(measured.t, lo=max(measured.t[0] - 0.5 * _step(measured.t), 0.0))
-        ze = _edges(measured.z / H, lo=0.0) if measured.z[0] > 0 else _edges(measured.z / H)
+        te, ze = map_edges(measured, H)
         _initial_panel(axes[0], measured, model, H, initial)
         kw = {"shading": "flat", "rasterized": True}
         m1 = axes[1].pcolormesh(te, ze, measured.c.T, vmin=0, vmax=1, cmap="viridis", **kw)
@@ -148,10 +68,6 @@ def map_comparison(measured: Any, model: np.ndarray, *, H: float, rmsd: float | 
                rf"$\delta_R$ = {measured.delta_R:.2f}, $c_0$ = {measured.c0:.2f}"
         fig.suptitle(head + ("" if rmsd is None else f", RMSD = {rmsd:.3f}"), fontsize=9)
     return fig
-
-
-def _step(t: np.ndarray) -> float:
-    return float(np.median(np.diff(t))) if t.size > 1 else 1.0
 
 
 def _initial_panel(ax: Any, measured: Any, model: np.ndarray, H: float,
@@ -177,7 +93,7 @@ def bottom_fits(maps: Sequence[Any], fits: Mapping[str, FitResult]) -> Figure:
     Maps without a fit in ``fits`` are drawn without a curve.
     """
     with style():
-        fig = _figure(5.2, 3.3)
+        fig = new_figure(5.2, 3.3)
         ax = fig.subplots()
         for i, m in enumerate(maps):
             color = f"C{i % 8}"
@@ -207,7 +123,7 @@ def laws(fits: Any) -> Figure:
     used for the laws are filled; the others hollow.
     """
     with style():
-        fig = _figure(6.4, 2.7)
+        fig = new_figure(6.4, 2.7)
         ax_a, ax_t = fig.subplots(1, 2)
         _law_panel(ax_a, fits, "A", fits.beta, "final bottom concentration $A$ [-]")
         _law_panel(ax_t, fits, "tau", fits.tau, r"time to 88 % $\tau$ [s]")
@@ -260,9 +176,9 @@ def rmsd_grid(points: Sequence[Mapping[str, float]], rmsd: Sequence[float], *,
     for p, r in zip(points, rmsd, strict=True):
         table[ys.index(p[keys[1]]), xs.index(p[keys[0]])] = r
     with style():
-        fig = _figure(3.9, 3.1)
+        fig = new_figure(3.9, 3.1)
         ax = fig.subplots()
-        im = ax.pcolormesh(_edges(np.array(xs)), _edges(np.array(ys)), table, cmap="magma_r",
+        im = ax.pcolormesh(edges(np.array(xs)), edges(np.array(ys)), table, cmap="magma_r",
                            shading="flat")
         _annotate_cells(ax, xs, ys, table)
         if best is not None:
@@ -322,7 +238,7 @@ def profiles(params: Mapping[str, float], *, deltas: Sequence[float] = (),
         return v1 + (v0 - v1) * np.exp(-z / d), (v0 - v1) / d * np.exp(-z / d)
 
     with style():
-        fig = _figure(5.6, 2.8)
+        fig = new_figure(5.6, 2.8)
         ax_v, ax_g = fig.subplots(1, 2, sharey=True)
         for dh in deltas:
             v, g = vel(dh)
@@ -366,9 +282,9 @@ def simulation(sol: Any, *, steady: tuple[np.ndarray, np.ndarray] | None = None,
     layers = sol.layers()
     n_layers = layers.shape[1]
     with style():
-        fig = _figure(7.2, 2.5)
+        fig = new_figure(7.2, 2.5)
         axes = fig.subplots(1, 3, gridspec_kw={"width_ratios": [1.35, 0.75, 1]})
-        te = _edges(sol.t, lo=max(sol.t[0] - 0.5 * _step(sol.t), 0.0))
+        te = time_edges(sol.t)
         ze = np.linspace(0.0, 1.0, n_layers + 1)
         mesh = axes[0].pcolormesh(te, ze, layers.T, vmin=0, vmax=1, cmap="viridis",
                                   shading="flat", rasterized=True)

@@ -1,0 +1,104 @@
+"""What every granseg figure shares: the style, the axis labels, map cell edges and saving.
+
+Figures are built without pyplot (no GUI, no global state, Agg canvas) inside
+:func:`style`; :func:`save_figure` writes each as ``STEM.png`` and
+``STEM.pdf`` atomically, refusing to replace existing files unless ``force``.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import matplotlib
+import numpy as np
+from matplotlib.figure import Figure
+
+from granseg._io import atomic_path, check_writable
+
+__all__ = ["STYLE", "C_LABEL", "T_LABEL", "H_LABEL", "style", "new_figure", "save_figure", "edges",
+           "time_edges", "map_edges"]
+
+STYLE: dict[str, Any] = {
+    "font.size": 8.5,
+    "axes.labelsize": 9,
+    "axes.titlesize": 9,
+    "legend.fontsize": 7.5,
+    "xtick.labelsize": 8,
+    "ytick.labelsize": 8,
+    "axes.spines.top": False,
+    "axes.spines.right": False,
+    "axes.linewidth": 0.8,
+    "lines.linewidth": 1.4,
+    "lines.markersize": 4,
+    "legend.frameon": False,
+    "figure.dpi": 100,
+    "savefig.dpi": 220,
+    "savefig.bbox": "tight",
+    "savefig.pad_inches": 0.03,
+    "pdf.fonttype": 42,
+    "image.cmap": "viridis",
+    "axes.prop_cycle": matplotlib.cycler(color=[
+        "#0072B2", "#D55E00", "#009E73", "#CC79A7", "#E69F00", "#56B4E9", "#F0E442", "#000000",
+    ]),
+}
+C_LABEL = "heavy concentration c [-]"
+T_LABEL = "time t [s]"
+H_LABEL = r"height $H^* = z/H$ [-]"
+
+
+@contextlib.contextmanager
+def style() -> Iterator[None]:
+    """Context in which figures get granseg's style (rcParams of :data:`STYLE`)."""
+    with matplotlib.rc_context(STYLE):
+        yield
+
+
+def new_figure(width: float, height: float) -> Figure:
+    """A new figure in inches, constrained layout (call inside :func:`style`)."""
+    return Figure(figsize=(width, height), layout="constrained")
+
+
+def save_figure(fig: Figure, stem: str | os.PathLike, *, force: bool = False) -> list[Path]:
+    """Write ``fig`` to ``STEM.png`` and ``STEM.pdf`` atomically; return both paths.
+
+    Both destinations are checked before anything is written, so an existing
+    file (without ``force``) leaves neither half written.
+    """
+    stem = Path(stem)
+    paths = [stem.with_name(stem.name + ext) for ext in (".png", ".pdf")]
+    for p in paths:
+        check_writable(p, force)
+    with style():
+        for p in paths:
+            with atomic_path(p, force=force) as tmp:
+                fig.savefig(tmp, format=p.suffix[1:])
+    return paths
+
+
+def edges(x: np.ndarray, lo: float | None = None, hi: float | None = None) -> np.ndarray:
+    """Cell edges around centres ``x`` (midpoints; ends extended by half a step)."""
+    x = np.asarray(x, dtype=float)
+    if x.size == 1:
+        return np.array([x[0] - 0.5, x[0] + 0.5])
+    mid = 0.5 * (x[1:] + x[:-1])
+    first = x[0] - (mid[0] - x[0]) if lo is None else lo
+    last = x[-1] + (x[-1] - mid[-1]) if hi is None else hi
+    return np.concatenate([[first], mid, [last]])
+
+
+def time_edges(t: np.ndarray) -> np.ndarray:
+    """Cell edges of sampling times t [s]: half a median step before the first, never below 0."""
+    t = np.asarray(t, dtype=float)
+    step = float(np.median(np.diff(t))) if t.size > 1 else 1.0
+    return edges(t, lo=max(t[0] - 0.5 * step, 0.0))
+
+
+def map_edges(m: Any, H: float) -> tuple[np.ndarray, np.ndarray]:
+    """Cell edges of map ``m``: time t [s] (:func:`time_edges`) and height H* = z / H [-]."""
+    te = time_edges(m.t)
+    ze = edges(m.z / H, lo=0.0) if m.z[0] > 0 else edges(m.z / H)
+    return te, ze

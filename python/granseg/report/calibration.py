@@ -1,0 +1,234 @@
+"""The calibration page of a campaign: one self-contained HTML page plus JSON.
+
+:func:`build_report` loads a campaign, fits the bottom curves and the
+A / tau laws, calibrates the model (or takes a given calibration), draws the
+figures and writes into ``OUT``::
+
+    OUT/index.html      the page (figures embedded as PNG; opens offline)
+    OUT/report.json     every number the page shows, machine-readable
+    OUT/figures/*.png   the same figures as files, with a PDF beside each
+
+The HTML is rendered from the JSON document (:func:`render`), so the two
+cannot disagree. Nothing existing is replaced unless ``force=True``.
+
+Example::
+
+    >>> build_report("campaign/", "report/")                     # doctest: +SKIP
+    PosixPath('report/index.html')
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import os
+import re
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from matplotlib.figure import Figure
+
+from granseg import __version__
+from granseg._io import atomic_write, prepare_output_dir, save_json
+from granseg.calibration import calibrate
+from granseg.fit import fit_campaign
+from granseg.maps import load_campaign
+from granseg.model import defaults, simulate
+from granseg.plot import bottom_fits, laws, map_comparison, profiles, rmsd_grid
+from granseg.report.html import esc, figures, num, page, pm, save_figures, table
+
+__all__ = ["OUTPUTS", "build_report", "report_data", "render"]
+
+OUTPUTS = ("index.html", "report.json", "figures")
+
+
+def _slug(i: int, name: str) -> str:
+    return f"map_{i:02d}_" + re.sub(r"[^A-Za-z0-9._-]+", "_", name)
+
+
+def build_report(
+    campaign: Any,
+    out: str | os.PathLike,
+    *,
+    calibration: Any = None,
+    fits_c0: float | None = 0.5,
+    force: bool = False,
+    progress: bool = True,
+    **calibrate_kwargs: Any,
+) -> Path:
+    """Write the report of ``campaign`` (directory or Campaign) into folder ``out``.
+
+    ``calibration`` is a :class:`granseg.calibration.Calibration` to reuse;
+    otherwise :func:`granseg.calibration.calibrate` runs with
+    ``calibrate_kwargs``. ``fits_c0`` selects the experiments whose A and
+    tau are fitted with the laws (None = all). Returns the HTML path.
+    """
+    camp = campaign if hasattr(campaign, "maps") else load_campaign(campaign)
+    out = prepare_output_dir(out, OUTPUTS, force, folders=["figures"])
+    fits = fit_campaign(camp, c0=fits_c0)
+    cal = calibration or calibrate(camp, progress=progress, **calibrate_kwargs)
+    log = (lambda msg: print(f"[report] {msg}", flush=True)) if progress else None
+    figs = save_figures(_draw_figures(camp, fits, cal), out, force=force, log=log)
+    data = report_data(camp, fits, cal, figs)
+    save_json(out / "report.json", data, force=force)
+    text = render(data, out)
+    atomic_write(out / "index.html", lambda tmp: tmp.write_text(text, encoding="utf-8"), force=force)
+    return out / "index.html"
+
+
+def _model_constants(cal: Any) -> dict[str, float]:
+    params = dict(defaults())
+    params.update(cal.settings.get("base", {}))
+    params.update(cal.best)
+    return params
+
+
+def _initial_profile(m: Any, params: dict[str, Any], n_cells: int) -> tuple[np.ndarray, np.ndarray]:
+    sol = simulate(**{**params, **m.case()}, t=np.array([0.0]), n_cells=n_cells)
+    return np.asarray(sol.z), np.asarray(sol.c)[0]
+
+
+def _draw_figures(camp: Any, fits: Any, cal: Any) -> list[tuple[str, str, Figure]]:
+    """The report's figures as (file stem, caption, figure)."""
+    params = _model_constants(cal)
+    H = float(params["H"])
+    figs: list[tuple[str, str, Figure]] = [
+        ("bottom_fits", "Bottom-layer concentration with tanh fits", bottom_fits(list(camp), fits.tanh)),
+        ("laws", "Final concentration A and time tau against density ratio", laws(fits)),
+    ]
+    if len(cal.keys) == 2:
+        figs.append(("rmsd_grid", "Mean RMSD over the factorial grid",
+                     rmsd_grid(cal.grid_points, cal.grid_mean, best=cal.best if cal.refined else None,
+                               stderr=cal.stderr if cal.refined else None)))
+    dgrid = cal.settings["grid"].get("delta_over_H", [])
+    figs.append(("profiles", "Velocity and shear-rate profiles of the calibrated model",
+                 profiles(params, deltas=dgrid, delta_err=_finite(cal.stderr.get("delta_over_H")))))
+    n_cells = int(cal.settings.get("n_cells", 180))
+    for i, (m, lay) in enumerate(zip(camp, cal.model_layers, strict=True)):
+        init = _initial_profile(m, params, n_cells)
+        fig = map_comparison(m, lay, H=H, rmsd=cal.rmsd[m.name], initial=init)
+        figs.append((_slug(i, m.name), f"{m.name}: measured and model maps", fig))
+    return figs
+
+
+def _finite(x: Any) -> float | None:
+    return float(x) if x is not None and np.isfinite(x) else None
+
+
+def report_data(camp: Any, fits: Any, cal: Any, figures: list[dict[str, str]]) -> dict[str, Any]:
+    """The JSON document of the report: every number the page shows."""
+    return {
+        "granseg_version": __version__,
+        "created": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
+        "campaign": str(getattr(camp, "directory", "")),
+        "experiments": [_experiment(m) for m in camp],
+        "fits": fits.to_dict(),
+        "calibration": cal.to_json(),
+        "model": {k: v for k, v in _model_constants(cal).items() if isinstance(v, int | float)},
+        "figures": figures,
+    }
+
+
+def _experiment(m: Any) -> dict[str, Any]:
+    return {
+        "name": m.name, "heavy": m.heavy, "light": m.light, "rho_h": m.rho_h, "rho_l": m.rho_l,
+        "delta_R": m.delta_R, "c0": m.c0, "M_g": m.M_g, "M_w": m.M_w, "M_tilde": m.M_tilde,
+        "n_times": m.n_times, "n_layers": m.n_layers, "t_end": float(m.t[-1]),
+        "smoothing_frames": m.smoothing_frames, "file": None if m.path is None else str(m.path),
+    }
+
+
+# --------------------------------------------------------------------------- page
+
+
+def _summary(d: Mapping[str, Any]) -> str:
+    cal = d["calibration"]
+    rows = [[esc(k), pm(cal["best"][k], cal["stderr"][k])] for k in cal["best"]]
+    rows.append(["mean RMSD at the optimum", num(cal["rmsd_mean"], ".4f")])
+    state = "refined by bounded least squares" if cal["refined"] else "best grid point (no refinement)"
+    warn = "" if cal["converged"] else f'<p class="warn">Refinement did not converge: {esc(cal["message"])}</p>'
+    s = cal["settings"]
+    for k in cal.get("at_bound", []):
+        warn += (f'<p class="warn">{esc(k)} ended on a bound of its range {esc(str(s["bounds"][k]))}: '
+                 "the optimum may lie beyond it (widen the bounds).</p>")
+    return (f"<h2>Calibrated parameters</h2><p class='key'>Optimum {state} "
+            f"(&plusmn; one standard error from the Jacobian).</p>{warn}"
+            + table(["parameter", "value"], rows)
+            + f"<p class='meta'>{num(s.get('n_runs'))} model runs in {num(s.get('n_sweeps'))} sweeps, "
+              f"{num(cal['elapsed_s'], '.1f')} s.</p>")
+
+
+def _experiments(d: Mapping[str, Any]) -> str:
+    cal, tanh = d["calibration"], d["fits"]["tanh"]
+    head = ["experiment", "heavy / light", "&delta;<sub>R</sub>", "c<sub>0</sub>", "M<sub>g</sub> [kg]",
+            "M&#771; [-]", "frames", "smoothing", "RMSD", "A [-]", "t<sub>0</sub> [s]", "&tau; [s]"]
+    rows = []
+    for x in d["experiments"]:
+        f = tanh.get(x["name"])
+        fit_cells = ["&ndash;"] * 3 if f is None else [
+            pm(f["params"][k], f["stderr"][k], ".3g") + ("" if f["converged"] else " *")
+            for k in ("A", "t0", "tau")]
+        rows.append([esc(x["name"]), f"{esc(x['heavy'])} / {esc(x['light'])}", num(x["delta_R"], ".3g"),
+                     num(x["c0"], ".3g"), num(x["M_g"], ".3g"), num(x["M_tilde"], ".3g"),
+                     num(x["n_times"]), num(x["smoothing_frames"]),
+                     num(cal["rmsd"].get(x["name"]), ".3f"), *fit_cells])
+    return ("<h2>Experiments</h2><p>RMSD of each experiment at the calibrated optimum; "
+            "A, t<sub>0</sub>, &tau; from the tanh fit of the bottom layer "
+            "(* = fit not converged).</p>" + table(head, rows, left=2))
+
+
+def _factorial(d: Mapping[str, Any]) -> str:
+    cal = d["calibration"]
+    names = [x["name"] for x in d["experiments"]]
+    keys = list(cal["best"])
+    grid = cal["grid"]
+    best = min(range(len(grid)), key=lambda i: grid[i]["rmsd_mean"])
+    rows = [[str(i + 1), *(num(g[k]) for k in keys), *(num(g["rmsd"][n], ".3f") for n in names),
+             num(g["rmsd_mean"], ".3f")] for i, g in enumerate(grid)]
+    classes = ["best" if i == best else "" for i in range(len(grid))]
+    return ("<h2>Full factorial design</h2><p>RMSD of every experiment for every run; "
+            "the highlighted row has the lowest mean.</p>"
+            + table(["ID", *map(esc, keys), *map(esc, names), "mean"], rows, classes))
+
+
+def _per_experiment(d: Mapping[str, Any]) -> str:
+    per = d["calibration"].get("per_experiment")
+    if not per:
+        return ""
+    keys = list(d["calibration"]["best"])
+    rows = [[esc(n), *(pm(p["best"][k], p["stderr"][k]) for k in keys), num(p["rmsd"], ".3f"),
+             "yes" if p["converged"] else "no"] for n, p in per.items()]
+    return ("<h2>Each experiment's own optimum</h2>"
+            + table(["experiment", *map(esc, keys), "RMSD", "converged"], rows))
+
+
+def _laws(d: Mapping[str, Any]) -> str:
+    f = d["fits"]
+    parts = ["<h2>Bottom-concentration laws</h2>"]
+    sel = ", ".join(map(esc, f["selected"])) or "none"
+    parts.append(f"<p>Experiments used (c<sub>0</sub> = {num(f['c0'])}): {sel}.</p>")
+    rows = []
+    for key, label in (("beta", "A = 1 &minus; 1/(2 &delta;<sub>R</sub><sup>&beta;</sup>)"),
+                       ("tau", "&tau; = &tau;<sub>1</sub> exp(&minus;&lambda;(&delta;<sub>R</sub> &minus; 1))")):
+        law = f[key]
+        if law is None:
+            rows.append([label, "not fitted", "&ndash;"])
+            continue
+        pars = ", ".join(f"{esc(k)} = {pm(v, law['stderr'][k])}" for k, v in law["params"].items())
+        rows.append([label, pars, num(law["mse"], ".3g")])
+    parts.append(table(["law", "parameters", "MSE"], rows, left=2))
+    parts += [f"<p class='warn'>{esc(n)}</p>" for n in f["notes"]]
+    return "".join(parts)
+
+
+def render(data: Mapping[str, Any], out: Path) -> str:
+    """The HTML page of report document ``data``; figure files are read from ``out``."""
+    title = f"granseg calibration: {Path(data['campaign']).name or data['campaign']}"
+    return page(title, "".join([
+        f"<h1>{esc(title)}</h1><p class='meta'>{len(data['experiments'])} experiments from "
+        f"{esc(data['campaign'])}; granseg {esc(data['granseg_version'])}, {esc(data['created'])}. "
+        "All numbers are in report.json beside this page.</p>",
+        _summary(data), _experiments(data), _factorial(data), _per_experiment(data), _laws(data),
+        figures(data["figures"], out),
+    ]))

@@ -1,0 +1,79 @@
+"""The diagnosis page: what the model gets wrong, in plain language, with its evidence.
+
+``write_report(diagnosis, DIR)`` writes::
+
+    DIR/index.html            summary, verdict, candidate table, figures (embedded PNG)
+    DIR/diagnosis.json        the JSON contract (same as diagnose --json)
+    DIR/figures/*.png, *.pdf  the figures of :data:`granseg.plot.diagnosis.FIGURES`
+
+The page is rendered from the JSON document (:func:`render`), in the same
+style as the calibration page (:mod:`granseg.report.html`). Nothing existing
+is replaced unless ``force``.
+
+Example::
+
+    >>> write_report(granseg.diagnose("campaign/"), "diag/")     # doctest: +SKIP
+    PosixPath('diag/index.html')
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from granseg._io import atomic_write, prepare_output_dir, save_json
+from granseg.plot.diagnosis import FIGURES
+from granseg.report.html import esc, figures, num, page, save_figures, table
+
+if TYPE_CHECKING:
+    from granseg.diagnosis.run import Diagnosis
+
+__all__ = ["OUTPUTS", "CAPTIONS", "write_report", "render"]
+
+OUTPUTS = ("index.html", "diagnosis.json", "figures")
+
+#: What each figure of :data:`~granseg.plot.diagnosis.FIGURES` shows, for the reader.
+CAPTIONS = {
+    "residual_maps": "Baseline model minus measurement for every experiment. Noise looks like speckle; "
+                     "a cause shows as coherent patches that repeat across experiments.",
+    "covariates": "Each experiment's own optimal delta/H and k, the depth-mean excess and where the "
+                  "misfit sits. A trend against a covariate is the clue to the cause.",
+    "candidates": "Every catalogued cause fitted to all experiments and scored on experiments it did "
+                  "not see (leave-one-out). Only a gain beyond the threshold names a cause.",
+    "gain": "RMSD per experiment before and after the extension, with the noise floor each map allows.",
+    "before_after": "The experiment that gains most: measurement, baseline and extended model.",
+}
+
+
+def write_report(d: Diagnosis, out: str | os.PathLike, *, force: bool = False) -> Path:
+    """Draw the figures and write ``out/index.html`` and ``out/diagnosis.json``; return the page."""
+    out = prepare_output_dir(out, OUTPUTS, force, folders=["figures"])
+    figs = save_figures([(name, CAPTIONS[name], draw(d)) for name, draw in FIGURES.items()], out, force=force)
+    result = d.result
+    save_json(out / "diagnosis.json", result, force=force)
+    text = render(result, figs, out)
+    return atomic_write(out / "index.html", lambda tmp: tmp.write_text(text, encoding="utf-8"), force=force)
+
+
+def render(r: Mapping[str, Any], figs: Sequence[Mapping[str, str]], out: Path) -> str:
+    """The HTML page of diagnosis document ``r`` with figures ``figs`` (files read from ``out``)."""
+    b = r["baseline"]
+    rows = [[esc(c["name"].replace("_", " ")), esc(c["law"]), num(c["rmsd"], ".4f"),
+             num(c["rmsd_held_out"], ".4f"), num(c["gain_held_out"], "+.4f")] for c in r["candidates"]]
+    best = ["best" if c["name"] == r["cause"] else "" for c in r["candidates"]]
+    return page("granseg diagnosis", "".join([
+        "<h1>What the model gets wrong</h1>",
+        f"<p class='verdict'><b>Cause: {esc(r['cause'])}</b> &mdash; explained: {esc(r['explained'])}</p>",
+        f"<p>{esc(r['summary'])}</p>",
+        f"<p>Noise floor (mean over experiments): {num(r['noise_floor'], '.4f')} ({esc(r['noise']['method'])}). "
+        f"Baseline: k = {num(b['params']['k'], '.3f')}, delta/H = {num(b['params']['delta_over_H'], '.3f')}; "
+        f"mean RMSD {num(b['rmsd_mean'], '.4f')} in sample, {num(b['rmsd_held_out_mean'], '.4f')} held out. "
+        f"Decision: {esc(r['decision']['reason'])}.</p>",
+        "<p class='meta'>All numbers are in diagnosis.json beside this page.</p>",
+        "<h2>Candidates</h2><p>Every catalogued cause, scored by leave-one-experiment-out; "
+        "the highlighted row is the named cause.</p>",
+        table(["cause", "fitted extension", "mean RMSD", "held-out RMSD", "held-out gain"], rows, best, left=2),
+        figures(figs, out, heading="Evidence"),
+    ]))
