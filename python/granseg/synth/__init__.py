@@ -3,7 +3,8 @@
 ``render_frames(c, ...)`` draws side-wall frames whose heavy share per layer
 follows the map ``c`` (see :mod:`granseg.synth.frames`);
 ``render_checkerboard(...)`` draws a calibration target through a lens;
-``campaign(...)`` builds a set of virtual experiments (granseg.synth.virtual);
+``campaign(...)`` builds a set of virtual experiments (granseg.synth.virtual),
+measured under a named noise process (``NOISE_PROCESSES``, ``NoiseProcess``);
 ``SCENES`` names the renderer settings the detector is tested on;
 ``MIXTURE_SCENES`` (the paper's six mixtures, grey-on-grey pairs) and
 ``APPARATUS_SCENES`` (bumpy lid and plate, motion blur, wall reflections,
@@ -34,13 +35,15 @@ from granseg.synth.scenes import (
 )
 
 __all__ = [
-    "APPARATUS_SCENES", "MATERIAL_LOOKS", "MIXTURE_SCENES", "SCENES", "TABLE1", "VIDEO_CODECS", "WIDE_ANGLE",
-    "Condition", "RenderedFrames", "campaign", "default_camera", "mixing_map", "random_conditions",
-    "random_effect", "render_checkerboard", "render_frames", "render_scene", "scene_names",
+    "APPARATUS_SCENES", "MATERIAL_LOOKS", "MIXTURE_SCENES", "NOISE_PROCESSES", "SCENES", "TABLE1",
+    "VIDEO_CODECS", "WIDE_ANGLE", "Condition", "NoiseProcess", "RenderedFrames", "campaign", "default_camera",
+    "mixing_map", "random_conditions", "random_effect", "render_checkerboard", "render_frames", "render_scene",
+    "scene_names",
 ]
 
 
-_VIRTUAL = ("campaign", "Condition", "TABLE1", "random_conditions", "random_effect")
+_VIRTUAL = ("campaign", "Condition", "NOISE_PROCESSES", "NoiseProcess", "TABLE1", "random_conditions",
+            "random_effect")
 
 
 def __getattr__(name: str) -> Any:

@@ -3,10 +3,12 @@
 ``campaign(...)`` runs the segregation-diffusion model for a list of
 conditions (default: the 16 of the paper's Table 1) with one effect of the
 diagnosis catalogue switched on at a chosen strength, and turns each run into
-a map in the DATA.md format through a realistic measurement:
+a map in the DATA.md format through a realistic measurement (``noise=``,
+default the ``persistent`` process):
 
 * **counting** - each of the 15 layers of the 9 D_p wide window holds 9 to 11
-  spheres per frame (drawn uniformly each frame);
+  spheres per frame (drawn uniformly each frame; the process's
+  ``n_particles``);
 * **binomial sampling** - each sphere in view is heavy with the probability
   the wall shows (the bed's layer mean, or the effect's wall view);
 * **persistence** - a sphere stays in view from one frame to the next unless
@@ -16,7 +18,37 @@ a map in the DATA.md format through a realistic measurement:
   new spheres; near the almost rigid top the same spheres stay for minutes,
   so the counting noise there is strongly correlated in time;
 * **moving average** - ``c`` is the centred moving average of ``c_raw`` over
-  ``smoothing_frames`` (about ``smoothing_s`` seconds), as the paper smooths.
+  ``smoothing_frames`` (about ``smoothing_s`` seconds), as the paper smooths;
+  it skips missing frames, which stay NaN in ``c`` as in ``c_raw`` (DATA.md).
+
+Noise processes (``noise=``: a name of :data:`NOISE_PROCESSES`, a
+:class:`NoiseProcess`, ``True`` = ``"persistent"``, ``False`` = the exact
+wall view with no counting and no smoothing):
+
+===================  ==========================================================
+``independent``       every frame draws new spheres (no persistence): counts
+                      independent binomial from frame to frame
+``persistent``        the default: spheres stay in view with the depth-
+                      dependent turnover above
+``misclassified``     persistent, and each sphere is recorded as the other
+                      kind with probability ``misclassified`` = 0.05, for as
+                      long as it stays in view (c_seen = f + (1 - 2f) c)
+``boundary_flips``    persistent, and in each frame each sphere in view is
+                      counted in a neighbouring layer (up or down, equally
+                      likely; never through the bottom or the top) with
+                      probability ``boundary_flips`` = 0.05: counts and heavy
+                      counts move between adjacent layers, the frame's total
+                      is kept
+``dropped_frames``    persistent, and a share ``dropped_frames`` = 0.03 of
+                      the frames (round(share x n_t), chosen at random) is
+                      missing: n = n_heavy = 0, c_raw = c = NaN in those rows
+``variable_counts``   persistent with 8 to 12 spheres per layer and frame
+===================  ==========================================================
+
+Every process has the fields of :class:`NoiseProcess` (``persistent``,
+``n_particles``, ``misclassified``, ``boundary_flips``, ``dropped_frames``),
+so mechanisms combine, e.g. ``NoiseProcess(persistent=False,
+misclassified=0.1)``; ``campaign.json`` records the process used.
 
 Frame rates follow the paper: 1.5 fps for delta_R >= 3 (steel and ceramic
 mixtures), 0.5 fps otherwise; each run lasts until its model map has been
@@ -36,15 +68,19 @@ Effects (``effect=`` and the meaning of ``strength``):
 ``spin_up_delay``               t_d [s]
 ``diffusivity_scale``           factor: b = 0.041 x factor
 ``misclassification``           f: a share f of spheres of each kind is taken
-                                for the other (c_seen = f + (1 - 2f) c); NOT in
-                                the diagnosis catalogue (for testing
-                                "unexplained")
+                                for the other (c_seen = f + (1 - 2f) c) in the
+                                wall view itself; NOT in the diagnosis
+                                catalogue (for testing "unexplained"); the
+                                ``misclassified`` noise process is the same
+                                error per sphere, in the counting
 =============================  ===============================================
 
 Example::
 
     >>> maps = campaign("camp/", effect="load_dependent_shear_band", strength=0.5,
     ...                 seed=1)                                    # doctest: +SKIP
+    >>> maps = campaign(noise="dropped_frames", seed=2)           # doctest: +SKIP
+    >>> maps = campaign(noise=NoiseProcess(misclassified=0.1, n_particles=(8, 12)))  # doctest: +SKIP
 """
 
 from __future__ import annotations
@@ -52,7 +88,7 @@ from __future__ import annotations
 import math
 import os
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -66,8 +102,9 @@ from granseg.model import MATERIALS, defaults, derived, simulate, velocity_profi
 
 DEFAULTS = defaults()
 
-__all__ = ["EFFECTS", "EFFECT_RANGES", "ROUGHNESS", "TABLE1", "Condition", "campaign",
-           "fill_mass", "frame_rate", "random_conditions", "random_effect"]
+__all__ = ["EFFECTS", "EFFECT_RANGES", "NOISE_PROCESSES", "ROUGHNESS", "TABLE1", "Condition",
+           "NoiseProcess", "campaign", "fill_mass", "frame_rate", "noise_process", "random_conditions",
+           "random_effect"]
 
 WINDOW_WIDTH_DP = 9.0
 #: Longest run [s]: a practical experiment's length (slow cases may end short of the steady state).
@@ -140,6 +177,97 @@ def frame_rate(rho_h: float, rho_l: float) -> float:
     return 1.5 if rho_h / rho_l >= 3.0 else 0.5
 
 
+# --------------------------------------------------------------------------- noise processes
+
+#: Upper bounds of the noise shares (a share of 0.5 or more would erase the signal).
+_SHARE_LIMITS = {"misclassified": (0.5, False), "boundary_flips": (0.5, True), "dropped_frames": (0.5, True)}
+
+
+@dataclass(frozen=True)
+class NoiseProcess:
+    """How the virtual camera counts the wall (see the module doc's table).
+
+    persistent : spheres stay in view with the depth-dependent turnover from
+        the model's velocity (False: every frame draws new spheres).
+    n_particles : (min, max) spheres per layer and frame, drawn uniformly.
+    misclassified : probability [-] that a sphere is recorded as the other
+        kind, drawn once per sphere (it persists with the sphere), in [0, 0.5).
+    boundary_flips : probability [-] per frame that a sphere in view is counted
+        in a neighbouring layer, in [0, 0.5].
+    dropped_frames : share [-] of the frames missing (n = 0, c_raw = c = NaN),
+        in [0, 0.5].
+    name : a label recorded in ``campaign.json``.
+
+    Bad values raise ValueError naming the field.
+    """
+
+    name: str = "custom"
+    persistent: bool = True
+    n_particles: tuple[int, int] = (9, 11)
+    misclassified: float = 0.0
+    boundary_flips: float = 0.0
+    dropped_frames: float = 0.0
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.name, str) or not self.name.strip():
+            raise ValueError(f"noise.name = {self.name!r}: need a non-empty string")
+        if not isinstance(self.persistent, bool | np.bool_):
+            raise ValueError(f"noise.persistent = {self.persistent!r}: need True or False")
+        object.__setattr__(self, "persistent", bool(self.persistent))
+        object.__setattr__(self, "n_particles", _n_range(self.n_particles))
+        for key, (hi, closed) in _SHARE_LIMITS.items():
+            value = getattr(self, key)
+            try:
+                v = float(value)
+            except (TypeError, ValueError):
+                v = math.nan
+            if isinstance(value, bool) or not (0.0 <= v <= hi if closed else 0.0 <= v < hi):
+                raise ValueError(f"noise.{key} = {value!r}: need 0 <= {key} {'<=' if closed else '<'} {hi}")
+            object.__setattr__(self, key, v)
+
+    def record(self) -> dict[str, Any]:
+        """The process as JSON-ready fields (``campaign.json``)."""
+        out = asdict(self)
+        out["n_particles"] = list(self.n_particles)
+        return out
+
+
+def _n_range(value: Any) -> tuple[int, int]:
+    try:
+        lo, hi = value
+        ok = all(not isinstance(v, bool) and float(v).is_integer() for v in (lo, hi)) and 1 <= lo <= hi
+    except (TypeError, ValueError):
+        ok = False
+    if not ok:
+        raise ValueError(f"noise.n_particles = {value!r}: need two integers 1 <= min <= max")
+    return int(lo), int(hi)
+
+
+#: The named measurement-noise processes (module doc's table), name -> process.
+NOISE_PROCESSES: dict[str, NoiseProcess] = {p.name: p for p in (
+    NoiseProcess("independent", persistent=False),
+    NoiseProcess("persistent"),
+    NoiseProcess("misclassified", misclassified=0.05),
+    NoiseProcess("boundary_flips", boundary_flips=0.05),
+    NoiseProcess("dropped_frames", dropped_frames=0.03),
+    NoiseProcess("variable_counts", n_particles=(8, 12)),
+)}
+
+
+def noise_process(noise: bool | str | NoiseProcess | None) -> NoiseProcess | None:
+    """The process ``noise`` names: None for False / None (exact wall view),
+    ``persistent`` for True, a :data:`NOISE_PROCESSES` entry by name, or the
+    :class:`NoiseProcess` itself."""
+    if noise is None or isinstance(noise, bool | np.bool_):
+        return NOISE_PROCESSES["persistent"] if noise else None
+    if isinstance(noise, NoiseProcess):
+        return noise
+    if isinstance(noise, str) and noise in NOISE_PROCESSES:
+        return NOISE_PROCESSES[noise]
+    raise ValueError(f"noise = {noise!r}: unknown noise process; choose True, False, a NoiseProcess "
+                     f"or one of {', '.join(NOISE_PROCESSES)}")
+
+
 # --------------------------------------------------------------------------- effects
 
 
@@ -189,22 +317,61 @@ def _persistence(params: Mapping[str, float], t: np.ndarray, fps: float, n_layer
     return np.exp(-np.abs(v) / fps / (WINDOW_WIDTH_DP * D_p))
 
 
-def _count(seen: np.ndarray, survive: np.ndarray, n_range: tuple[int, int], rng: np.random.Generator
+def _count(seen: np.ndarray, survive: np.ndarray, proc: NoiseProcess, rng: np.random.Generator
            ) -> tuple[np.ndarray, np.ndarray]:
-    """Spheres in view (n) and heavy ones (n_heavy) per frame and layer, with persistence."""
+    """Spheres counted (n) and heavy ones (n_heavy) per frame and layer under ``proc``.
+
+    Each layer has ``max`` slots, the first n of them in view; a slot keeps its
+    sphere (kind and misclassification) with probability ``survive``, else a
+    new one is drawn. The draws of the persistent process come first and in a
+    fixed order, so its maps do not depend on the other mechanisms' code.
+    """
     n_t, n_l = seen.shape
-    lo, hi = n_range
+    lo, hi = proc.n_particles
+    f_mis, p_flip = proc.misclassified, proc.boundary_flips
     slots = rng.random((n_l, hi)) < seen[0][:, None]
     n = rng.integers(lo, hi + 1, size=(n_t, n_l))
+    mislabelled = rng.random((n_l, hi)) < f_mis if f_mis else None
     n_heavy = np.empty((n_t, n_l), dtype=np.int64)
+    counted = n.copy() if p_flip else n
     cols = np.arange(hi)[None, :]
     for i in range(n_t):
         if i:
             fresh = rng.random((n_l, hi)) >= survive[i][:, None]
             draws = rng.random((n_l, hi)) < seen[i][:, None]
             slots = np.where(fresh, draws, slots)
-        n_heavy[i] = (slots & (cols < n[i][:, None])).sum(axis=1)
-    return n, n_heavy
+            if mislabelled is not None:
+                mislabelled = np.where(fresh, rng.random((n_l, hi)) < f_mis, mislabelled)
+        in_view = cols < n[i][:, None]
+        heavy = (slots ^ mislabelled if mislabelled is not None else slots) & in_view
+        n_heavy[i] = heavy.sum(axis=1)
+        if p_flip:
+            counted[i], n_heavy[i] = _flip(in_view, heavy, p_flip, rng)
+    if proc.dropped_frames:
+        k = min(n_t - 1, int(round(proc.dropped_frames * n_t)))
+        lost = rng.choice(n_t, size=k, replace=False)
+        counted[lost] = 0
+        n_heavy[lost] = 0
+    return counted, n_heavy
+
+
+def _flip(in_view: np.ndarray, heavy: np.ndarray, p: float, rng: np.random.Generator
+          ) -> tuple[np.ndarray, np.ndarray]:
+    """Counts (n, n_heavy) per layer of one frame after each sphere in view has moved to the
+    layer above or below with probability ``p`` (up or down equally; none through the walls)."""
+    moves = in_view & (rng.random(in_view.shape) < p)
+    up = rng.random(in_view.shape) < 0.5
+    up_moves, down_moves = moves & up, moves & ~up
+    up_moves[-1] = False
+    down_moves[0] = False
+    out = []
+    for mask in (in_view, heavy):
+        u, d = (up_moves & mask).sum(axis=1), (down_moves & mask).sum(axis=1)
+        total = mask.sum(axis=1) - u - d
+        total[1:] += u[:-1]
+        total[:-1] += d[1:]
+        out.append(total)
+    return out[0], out[1]
 
 
 def _experiment(cond: Condition, effect: Effect, strength: float, base: Mapping[str, float],
@@ -224,14 +391,17 @@ def _experiment(cond: Condition, effect: Effect, strength: float, base: Mapping[
     out = dict(t=t, z=z, name=cond.label(), heavy=cond.heavy, light=cond.light,
                rho_h=params["rho_h"], rho_l=params["rho_l"], c0=cond.c0, M_g=cond.M_g,
                M_w=cond.M_w, fps=fps)
-    if not opts["noise"]:
+    proc = opts["noise"]
+    if proc is None:
         return {**out, "c": seen, "smoothing_frames": 1}
     window = max(1, int(round(opts["smoothing_s"] * fps)) // 2 * 2 + 1)
-    survive = _persistence(params, t, fps, bed.shape[1])
-    n, n_heavy = _count(seen, survive, opts["n_particles"], rng)
-    c_raw = n_heavy / n
-    return {**out, "c": np.clip(moving_average(c_raw, window), 0.0, 1.0), "c_raw": c_raw,
-            "n": n, "n_heavy": n_heavy, "smoothing_frames": window}
+    survive = _persistence(params, t, fps, bed.shape[1]) if proc.persistent else np.zeros(seen.shape)
+    n, n_heavy = _count(seen, survive, proc, rng)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        c_raw = np.where(n > 0, n_heavy / np.maximum(n, 1), np.nan)
+    c = np.clip(moving_average(c_raw, window), 0.0, 1.0)
+    c[np.isnan(c_raw)] = np.nan  # no reading stays no reading (as the frame analysis writes it)
+    return {**out, "c": c, "c_raw": c_raw, "n": n, "n_heavy": n_heavy, "smoothing_frames": window}
 
 
 # --------------------------------------------------------------------------- public
@@ -273,8 +443,8 @@ def campaign(
     effect: str | None = None,
     strength: float | None = None,
     seed: int | None = 0,
-    noise: bool = True,
-    n_particles: tuple[int, int] = (9, 11),
+    noise: bool | str | NoiseProcess = True,
+    n_particles: tuple[int, int] | None = None,
     smoothing_s: float = 10.0,
     fps: float | None = None,
     duration: float | None = None,
@@ -295,8 +465,11 @@ def campaign(
         M_g [kg], optional M_w [kg], name); default :data:`TABLE1`.
     effect, strength : the hidden effect and its size (see the module doc).
     seed : random seed of the measurement noise.
-    noise : False gives the exact wall view (no counting, no smoothing).
-    n_particles : (min, max) spheres per layer and frame.
+    noise : the measurement-noise process: a name of :data:`NOISE_PROCESSES`
+        or a :class:`NoiseProcess`; True = ``"persistent"`` (the default);
+        False gives the exact wall view (no counting, no smoothing).
+    n_particles : (min, max) spheres per layer and frame, replacing the
+        process's ``n_particles`` (default: the process's own).
     smoothing_s : moving-average length [s] (odd number of frames).
     fps : frame rate [1/s] for every run (default: the paper's, per delta_R).
     duration : run length [s] for every run (default: to the steady state).
@@ -308,12 +481,13 @@ def campaign(
     """
     chosen, s = _effect(effect, strength)
     conds = _conditions(conditions)
-    lo, hi = (int(v) for v in n_particles)
-    if not 1 <= lo <= hi:
-        raise ValueError(f"n_particles = {n_particles!r}: need 1 <= min <= max")
+    proc = noise_process(noise)
+    if n_particles is not None:
+        chosen_n = replace(proc or NOISE_PROCESSES["persistent"], n_particles=n_particles)
+        proc = chosen_n if proc is not None else None
     if not smoothing_s >= 0:
         raise ValueError(f"smoothing_s = {smoothing_s!r} s must be >= 0")
-    opts = dict(noise=bool(noise), n_particles=(lo, hi), smoothing_s=float(smoothing_s),
+    opts = dict(noise=proc, smoothing_s=float(smoothing_s),
                 fps=fps, duration=duration, n_cells=int(n_cells))
     base = {"k": float(k), "delta_over_H": float(delta_over_H)}
     rng = np.random.default_rng(seed)
@@ -322,8 +496,10 @@ def campaign(
     if out_dir is not None:
         _write(Path(out_dir), arrays, save_map, force,
                {"effect": "none" if isinstance(chosen, Baseline) else chosen.name, "strength": s, "seed": seed, "baseline": base,
-                "effect_params": dict(effect_params or {}), "noise": bool(noise),
-                "n_particles": [lo, hi], "smoothing_s": smoothing_s,
+                "effect_params": dict(effect_params or {}),
+                "noise": proc.record() if proc is not None else False,
+                "n_particles": list(proc.n_particles) if proc is not None else None,
+                "smoothing_s": smoothing_s,
                 "experiments": [a["name"] for a in arrays], "synthetic": True})
     return maps
 
