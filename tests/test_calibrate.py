@@ -245,7 +245,7 @@ def test_optimum_on_a_bound_is_flagged(maps, capsys):
     assert cal.at_bound == ["k"] and cal.best["k"] == pytest.approx(0.6)
     assert cal.to_json()["at_bound"] == ["k"]
     assert "--bounds k=LO:HI" in summary(cal)
-    from granseg.report.html import _summary
+    from granseg.report.calibration import _summary
 
     assert "k ended on a bound" in _summary({"calibration": cal.to_json()})
     free = calibrate(maps, n_cells=N_CELLS, progress=False)
