@@ -1,0 +1,245 @@
+"""Where the outward centre bias on the physically based fixtures comes from (issue 9).
+
+On the Mitsuba looks (tests/fixtures/pbr) detected centres lie outward of the
+truth, more the further from the image centre. This script separates the
+candidate causes, each measured on its own:
+
+(a) the truth's definition. The truth is the area centroid of each sphere's
+    outline traced through the refracting wall (``pbr._Cell.outline``), not
+    the image of its 3-D centre. Measured: projected centre and the centre
+    of a circle fitted to the outline left visible by the sphere's
+    neighbours (the curved wall packs them so that they overlap a little in
+    the image), both against the truth, by position.
+(b) the camera model. The renderer maps canvas -> sensor with
+    ``cv2.undistortPoints`` (60 iterations), the pipeline sensor -> canvas
+    with ``cv2.projectPoints``: the round trip at the window's corners.
+(c) the detector. The detection error by position on the fixtures (what
+    the pipeline's frame worker finds, matched to the truth within 0.3 D),
+    the per-frame layer-count error with the detected x or y replaced by
+    the truth (which of the two the count misses come from), and, with
+    ``--render`` (needs mitsuba, about a minute on two cores), a control:
+    the same packing rendered under the fixtures' two side panels, without
+    vignetting, and under one panel behind the camera (shading symmetric
+    about every view direction).
+
+    PYTHONPATH=python python benches/bench_pbr_centre_bias.py [--looks steel-pom pom-pp ...] \
+        [--render] [--json benches/results/pbr_centre_bias.json]
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import tempfile
+from pathlib import Path
+
+import cv2
+import numpy as np
+from scipy.spatial import cKDTree
+
+import granseg.measure.pipeline as pipeline
+from granseg._io import save_json
+from granseg.measure.experiment import load_experiment
+from granseg.measure.layers import in_window, layer_counts
+from granseg.synth.pbr import _Cell, load_fixture
+
+PBR = Path(__file__).resolve().parents[1] / "tests" / "fixtures" / "pbr"
+BAND = 40.0  # px from the window's sides / top and bottom that count as "near" them
+
+
+def _outward(rows: np.ndarray, win) -> dict:
+    """Mean outward error [px]: x near the sides and in the middle, y near top/bottom and in the middle.
+
+    rows: (n, 4) true x, y and error dx, dy."""
+    x0, y0, x1, y1 = win
+    xm, ym = (x0 + x1) / 2, (y0 + y1) / 2
+    ox, oy = rows[:, 2] * np.sign(rows[:, 0] - xm), rows[:, 3] * np.sign(rows[:, 1] - ym)
+    side = (rows[:, 0] < x0 + BAND) | (rows[:, 0] > x1 - BAND)
+    top_bottom = (rows[:, 1] < y0 + BAND) | (rows[:, 1] > y1 - BAND)
+    return {"x_sides": round(float(ox[side].mean()), 3),
+            "x_middle": round(float(ox[np.abs(rows[:, 0] - xm) < BAND].mean()), 3),
+            "y_top_bottom": round(float(oy[top_bottom].mean()), 3),
+            "y_middle": round(float(oy[np.abs(rows[:, 1] - ym) < BAND].mean()), 3)}
+
+
+def geometry(truth) -> dict:
+    """(a): projected centre and the circle fitted to the visible (unoccluded) outline, against the truth."""
+    e = truth.experiment
+    d = float(e["particle_diameter_px"])
+    cell = _Cell(np.asarray(e["camera_matrix"], float), d, truth.n.shape[1])
+    proj_rows, vis_rows = [], []
+    n_dir = 48
+    phi = np.arange(n_dir) * 2 * np.pi / n_dir
+    rad = np.linspace(0.25 * d, 0.65 * d, 321)
+    for rows, cen in zip(truth.particles, truth.centres, strict=True):
+        inside = np.flatnonzero(rows[:, 4] > 0)
+        proj = cell.project(cen[inside, :3])
+        proj_rows.append(np.column_stack([rows[inside, :2], proj - rows[inside, :2]]))
+        for i in inside:
+            uv, c3, r = rows[i, :2], cen[i, :3], cen[i, 3]
+            o, dr = cell.rays(uv[0] + rad[None] * np.cos(phi)[:, None], uv[1] + rad[None] * np.sin(phi)[:, None])
+
+            def hit(c, rr, o=o, dr=dr):
+                rel = c - o
+                along = np.sum(rel * dr, -1)
+                gap2 = np.sum(rel * rel, -1) - along ** 2
+                return np.where(gap2 < rr ** 2, along - np.sqrt(np.maximum(rr ** 2 - gap2, 0)), np.inf)
+
+            t_own = hit(c3, r)
+            seen = np.isfinite(t_own)
+            for j in np.flatnonzero(np.linalg.norm(cen[:, :3] - c3, axis=1) < 2.2 * r + 1):
+                if j != i:
+                    seen &= ~(hit(cen[j, :3], cen[j, 3]) < t_own)
+            edge = rad[np.argmax(~seen, axis=1)]
+            ex, ey = uv[0] + edge * np.cos(phi), uv[1] + edge * np.sin(phi)
+            sol = np.linalg.lstsq(np.column_stack([ex, ey, np.ones(n_dir)]), -(ex ** 2 + ey ** 2), rcond=None)[0]
+            vis_rows.append([uv[0], uv[1], -sol[0] / 2 - uv[0], -sol[1] / 2 - uv[1]])
+    win = e["window"]
+    return {"projected_centre_minus_truth": _outward(np.concatenate(proj_rows), win),
+            "visible_outline_circle_minus_truth": _outward(np.array(vis_rows), win)}
+
+
+def camera_round_trip(truth) -> float:
+    """(b): largest |undistortPoints(projectPoints(p)) - p| [px] at the window's corners and side midpoints."""
+    e = truth.experiment
+    k, dist = np.asarray(e["camera_matrix"], float), np.asarray(e["dist_coeffs"], float)
+    x0, y0, x1, y1 = e["window"]
+    pts = np.array([[x, y] for x in (x0, (x0 + x1) / 2, x1) for y in (y0, (y0 + y1) / 2, y1)])
+    ray = np.column_stack([(pts - k[:2, 2]) / [k[0, 0], k[1, 1]], np.ones(len(pts))])
+    sensor, _ = cv2.projectPoints(ray.reshape(-1, 1, 3), np.zeros(3), np.zeros(3), k, dist)
+    crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 60, 1e-12)
+    back = cv2.undistortPoints(sensor, k, dist, P=k, criteria=crit).reshape(-1, 2)
+    return float(np.abs(back - pts).max())
+
+
+def detections(folder: Path):
+    """Every sphere the frame worker finds (also just outside the window's sides), per frame, and the truth."""
+    truth = load_fixture(folder)
+    exp = load_experiment(folder / "experiment.json")
+    size = truth.images[0].shape[1::-1]
+    keep = pipeline.in_window
+    # keep the spheres up to 20 px beyond the sides, to see which ones the bias pushes out
+    pipeline.in_window = lambda x, y, w: in_window(x, y, (w[0] - 20, w[1], w[2] + 20, w[3]))
+    try:
+        worker = pipeline._FrameWorker(exp, size)
+        worker.learn(truth.images[0])
+        found = [worker(str(i), img)[0] for i, img in enumerate(truth.images)]
+    finally:
+        pipeline.in_window = keep
+    return truth, exp, found
+
+
+def detector(folder: Path) -> dict:
+    """(c): detection error by position and the layer-count error with detected x or y replaced by the truth."""
+    truth, exp, found = detections(folder)
+    d = exp.particle_diameter_px
+    rows, counts = [], {k: [] for k in ("detected", "true_x", "true_y", "true_xy")}
+    for tp, s in zip(truth.particles, found, strict=True):
+        dist, j = cKDTree(tp[:, :2]).query(np.column_stack([s.x, s.y]))
+        m = dist < 0.3 * d
+        rows.append(np.column_stack([tp[j[m], :2], s.x[m] - tp[j[m], 0], s.y[m] - tp[j[m], 1]]))
+        for key in counts:
+            x, y = s.x.copy(), s.y.copy()
+            if key in ("true_x", "true_xy"):
+                x[m] = tp[j[m], 0]
+            if key in ("true_y", "true_xy"):
+                y[m] = tp[j[m], 1]
+            counts[key].append(layer_counts(x, y, np.zeros(len(x), bool), exp.window)[0])
+    n = truth.n
+    err = {k: round(float(np.mean(np.abs(np.array(v) - n)[n > 0] / n[n > 0])), 4) for k, v in counts.items()}
+    return {"detected_minus_truth": _outward(np.concatenate(rows), exp.window), "frame_layer_count_error": err}
+
+
+def outline_fit(folder: Path) -> dict:
+    """(c), the outline fit alone: started at the true centres with the true radii, where it moves them
+    (3 iterations, as the detector), and where its edge finder puts the rim, by direction, against the
+    true outline's radius, for spheres near the window's left / right side and in its middle column."""
+    from granseg.measure.detect import _smooth
+    from granseg.measure.outline import RIM_SEARCH_PX, RIM_SEARCH_SIZE, _sample, fit_outlines
+    from granseg.measure.wall import remove_wall_glare
+
+    truth = load_fixture(folder)
+    exp = load_experiment(folder / "experiment.json")
+    worker = pipeline._FrameWorker(exp, truth.images[0].shape[1::-1])
+    worker.learn(truth.images[0])
+    d = exp.particle_diameter_px
+    x0, y0, x1, y1 = exp.window
+    xm, ym = (x0 + x1) / 2, (y0 + y1) / 2
+    rows, edges = [], {"left": [], "middle": [], "right": []}
+    n_rays = 48
+    theta = np.linspace(0, 2 * np.pi, n_rays, endpoint=False)
+    for tp, img in zip(truth.particles, truth.images, strict=True):
+        crop, _ = remove_wall_glare(worker.undistort(img), d, worker.bed_rows)
+        smooth = _smooth(crop, d, worker.templates.sign)
+        tp = tp[tp[:, 4] > 0]
+        start, radius = tp[:, :2] - worker.crop[:2], tp[:, 2] / 2
+        moved = fit_outlines(smooth, start, radius, d).centres - start
+        rows.append(np.column_stack([tp[:, :2], moved]))
+        # the edge finder of fit_outlines, once, from the true centres
+        steps = np.arange(0.65 * radius.max(), 1.4 * radius.max(), 0.5)
+        px = start[:, 0, None, None] + steps * np.cos(theta)[None, :, None]
+        py = start[:, 1, None, None] + steps * np.sin(theta)[None, :, None]
+        m, k, n_s = px.shape
+        prof = _sample(smooth, px.reshape(m * k, n_s), py.reshape(m * k, n_s))
+        drop = (prof[:, :-2] - prof[:, 2:]) / 2.0
+        width = max(3, int(0.3 * d) | 1)
+        sharp = drop - cv2.filter2D(drop, -1, np.ones((1, width), np.float32) / width,
+                                    borderType=cv2.BORDER_REPLICATE)
+        sharp = sharp.reshape(m, k, n_s - 2)
+        band = RIM_SEARCH_PX + RIM_SEARCH_SIZE * radius
+        sharp = np.where(np.abs(steps[1:-1][None, None] - radius[:, None, None]) <= band[:, None, None], sharp,
+                         -np.inf)
+        edge = steps[1:-1][np.argmax(sharp, axis=2)] - radius[:, None]
+        centre_rows = np.abs(tp[:, 1] - ym) < 150
+        for name, sel in (("left", tp[:, 0] < x0 + BAND), ("right", tp[:, 0] > x1 - BAND),
+                          ("middle", (np.abs(tp[:, 0] - xm) < BAND) & centre_rows)):
+            edges[name].append(edge[sel])
+    by_angle = {name: {f"{int(a)}deg": round(float(np.concatenate(v)[:, i].mean()), 2)
+                       for i, a in zip(range(0, n_rays, 6), np.degrees(theta[::6]), strict=True)}
+                for name, v in edges.items()}
+    return {"fit_from_truth_minus_truth": _outward(np.concatenate(rows), exp.window),
+            "rim_minus_true_radius_by_direction (0deg = +x, 90deg = +y = down)": by_angle}
+
+
+def render_control(heavy: str, light: str, out: Path) -> dict:
+    """Two frames of one packing under the fixtures' two side panels, without vignetting, and under
+    a panel behind the camera; the detector's outward error on each."""
+    import granseg.synth.pbr as pbr
+
+    pbr.LAMPS.setdefault("behind-camera", [(0.0, 300.0)])  # this script only; 300 mm from the axis
+    result = {}
+    for name, kw in (("two side panels", {}), ("two side panels, no vignetting", {"vignetting": 0.0}),
+                     ("one panel behind the camera", {"lighting": "behind-camera"})):
+        folder = out / name.replace(" ", "-").replace(",", "")
+        pbr.render_pbr_frames(pbr.fixture_map(2, 0.5), heavy=heavy, light=light, image_size=pbr.FIXTURE_SIZE,
+                              particle_diameter_px=pbr.FIXTURE_D_PX, noise=0.0, jpeg_quality=None, spp=16,
+                              seed=3, out_dir=folder, force=True, **kw)
+        result[name] = detector(folder)
+        print(f"  control {heavy}/{light}, {name}: {result[name]}", flush=True)
+    return result
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    looks = sorted(p.name for p in PBR.iterdir() if (p / "truth.npz").is_file())
+    ap.add_argument("--looks", nargs="+", default=["steel-pom", "pom-pp", "ceramic-pp", "grey-glossy-matte"],
+                    choices=looks)
+    ap.add_argument("--render", action="store_true", help="also render the lighting control (needs mitsuba)")
+    ap.add_argument("--json", type=Path, default=None)
+    args = ap.parse_args()
+    out = {}
+    for look in args.looks:
+        truth = load_fixture(PBR / look)
+        out[look] = {"a_geometry": geometry(truth), "b_camera_round_trip_px": camera_round_trip(truth),
+                     "c_detector": detector(PBR / look), "c_outline_fit": outline_fit(PBR / look)}
+        print(look, out[look], flush=True)
+    if args.render:
+        with tempfile.TemporaryDirectory() as tmp:
+            out["control"] = {f"{h}-{lt}": render_control(h, lt, Path(tmp) / f"{h}-{lt}")
+                              for h, lt in (("grey-glossy", "grey-matte"), ("pom", "pp"))}
+    if args.json is not None:
+        save_json(args.json, {"command": " ".join(sys.argv), "band_px": BAND, "results": out}, force=True)
+
+
+if __name__ == "__main__":
+    main()
