@@ -68,7 +68,9 @@ from typing import Any
 import cv2
 import numpy as np
 
-from granseg.synth.frames import MATERIAL_LOOKS, RenderedFrames
+from granseg._io import atomic_path, atomic_write, save_json
+from granseg.synth.frames import MATERIAL_LOOKS, RenderedFrames, _Bed, _check_map
+from granseg.synth.frames import _experiment as frame_experiment
 
 __all__ = ["FIXTURE_LOOKS", "PBR_MATERIALS", "PbrFrames", "fixture_map", "load_fixture", "render_fixtures",
            "render_pbr_frames"]
@@ -690,7 +692,6 @@ def render_pbr_frames(
     -------
     PbrFrames (a RenderedFrames) with the frames, the apparent centres and the counts.
     """
-    from granseg.synth.frames import _check_map
 
     cmap = _check_map(c)
     heavy_key, light_key = _material(heavy), _material(light)
@@ -772,7 +773,6 @@ class _Packing:
 
     def __init__(self, cell: _Cell, canvas, heavy: str, light: str, second_layer: bool,
                  rng: np.random.Generator):
-        from granseg.synth.frames import _Bed
 
         self.cell = cell
         d, n_layers = cell.d_px, cell.n_layers
@@ -898,11 +898,9 @@ def _sensor(img: np.ndarray, vignetting: float, noise: float, jpeg_quality: int 
 
 def _experiment(heavy, light, cmap, k_mat, dist, win, d, fps, extra) -> dict[str, Any]:
     """The 2-D renderer's experiment.json, named as a PBR look and with DATA.md's material spellings."""
-    from granseg.synth.frames import _experiment as experiment
-
     names = {"pom": "POM", "pp": "PP"}  # as DATA.md spells them
     base = {"name": f"pbr-{heavy}-{light}", "heavy": names.get(heavy, heavy), "light": names.get(light, light)}
-    return experiment(heavy, light, cmap, k_mat, dist, win, d, fps, {**base, **(extra or {})})
+    return frame_experiment(heavy, light, cmap, k_mat, dist, win, d, fps, {**base, **(extra or {})})
 
 
 # --------------------------------------------------------------------------- files
@@ -910,7 +908,6 @@ def _experiment(heavy, light, cmap, k_mat, dist, win, d, fps, extra) -> dict[str
 
 def _write(result: PbrFrames, out: Path, jpeg_quality: int | None, force: bool) -> list[Path]:
     """Frames (JPEG written once, at the quality asked), experiment.json and truth.npz."""
-    from granseg._io import atomic_path, atomic_write, save_json
 
     out.mkdir(parents=True, exist_ok=True)
     ext = ".png" if jpeg_quality is None else ".jpg"
@@ -1080,7 +1077,6 @@ def render_fixtures(out: Path, looks: list[str] | None = None, spp: int = FIXTUR
         entry["apparent_vs_true_layer_differ"] = _layer_mismatch(r)
         report[name] = entry
         print(f"{name}: {seconds:.0f} s, {json.dumps(entry)}", flush=True)
-        from granseg._io import save_json
 
         save_json(report_path, report, force=True)
 
