@@ -110,3 +110,17 @@ def test_bad_campaign_names_the_problem(tmp_path):
         from granseg.diagnosis import diagnose
 
         diagnose(tmp_path / "nope", progress=False)
+
+
+def test_dropped_frames_are_skipped_without_warnings():
+    """Frames with no reading (DATA.md: NaN rows) are left out of every step, silently."""
+    import warnings
+
+    maps = campaign(conditions=COND[:3], noise="dropped_frames", seed=8)
+    assert any(np.isnan(m.c).all(axis=1).any() for m in maps)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)
+        from granseg.diagnosis import diagnose
+
+        d = diagnose(maps, causes=["spin_up_delay"], progress=False)
+    assert np.isfinite(d.result["baseline"]["rmsd_mean"])

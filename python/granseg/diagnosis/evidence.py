@@ -90,7 +90,9 @@ def _depth_mean(data: Data, base: Fit) -> dict[str, list[float]]:
     for i, m in enumerate(data.maps):
         model = base.layers[i]
         mixing = (4 * model * (1 - model)).mean(axis=1) > 0.3
-        dm = np.nanmean(m.c, axis=1) - m.c0
+        read = np.isfinite(m.c).any(axis=1)  # dropped frames have no reading at all
+        dm = np.full(m.n_times, np.nan)
+        dm[read] = np.nanmean(m.c[read], axis=1) - m.c0
         sel = mixing if mixing.sum() >= 3 else np.ones_like(mixing)
         excess.append(float(np.nanmean(dm[sel])))
         peak.append(float(np.nanmax(np.abs(dm))))
