@@ -199,15 +199,16 @@ def _grid_values(key: str, values: Any) -> list[float]:
     return arr.tolist()
 
 
-def _as_maps(campaign: Campaign | Sequence[Map] | str | os.PathLike) -> list[Map]:
+def as_maps(campaign: Campaign | Sequence[Map] | str | os.PathLike) -> list[Map]:
+    """The maps of a campaign directory, Campaign or list, with distinct names (ValueError otherwise)."""
     if isinstance(campaign, str | os.PathLike):
         return list(load_campaign(Path(campaign)))
     maps = list(campaign)
     if not maps:
-        raise ValueError("calibrate: campaign has no maps")
+        raise ValueError("campaign: it has no maps")
     names = [m.name for m in maps]
     if len(set(names)) != len(names):
-        raise ValueError(f"calibrate: duplicate experiment names in {names}")
+        raise ValueError(f"campaign: duplicate experiment names in {names}")
     return maps
 
 
@@ -276,7 +277,7 @@ def calibrate(
         (refused by default with :class:`granseg.errors.FlaggedMapError`).
     """
     t_start = time.perf_counter()
-    maps = _as_maps(campaign)
+    maps = as_maps(campaign)
     check_accepted(maps, accept_flagged)
     grid = check_grid(grid, list(defaults()))
     keys = list(grid)

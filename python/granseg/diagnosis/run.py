@@ -20,14 +20,14 @@ from typing import Any
 import numpy as np
 
 from granseg._io import check_writable, save_json
-from granseg.calibration import Calibration, calibrate
+from granseg.calibration import Calibration, as_maps, calibrate
 from granseg.diagnosis import selection
 from granseg.diagnosis.evidence import Evidence, gather
 from granseg.diagnosis.noise import NoiseEstimate, campaign_floor
 from granseg.diagnosis.result import DiagnosisJSON, build_result
 from granseg.fitting import DEFAULT_N_CELLS, Data, Fit, fit, loo_predict
 from granseg.fitting import causes as catalogue
-from granseg.maps import Map, check_accepted, load_campaign
+from granseg.maps import Map, check_accepted
 
 __all__ = ["Diagnosis", "diagnose"]
 
@@ -79,12 +79,9 @@ class Diagnosis:
 
 
 def _as_maps(campaign: Any) -> list[Map]:
-    maps = list(load_campaign(Path(campaign))) if isinstance(campaign, str | os.PathLike) else list(campaign)
+    maps = as_maps(campaign)
     if len(maps) < 3:
         raise ValueError(f"diagnose: a campaign needs at least 3 experiments for leave-one-out, got {len(maps)}")
-    names = [m.name for m in maps]
-    if len(set(names)) != len(names):
-        raise ValueError(f"diagnose: duplicate experiment names in {names}")
     return maps
 
 

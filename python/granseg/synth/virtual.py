@@ -281,10 +281,15 @@ def _effect(effect: str | None, strength: float | None) -> tuple[Effect, float]:
     name = "none" if effect is None else str(effect)
     if name == "none":
         return Baseline(), 0.0
-    if name == "baseline" or name not in REGISTRY:
-        raise ValueError(f"effect = {name!r}: unknown; choose none or one of {', '.join(causes.names(catalogued_only=False))}")
-    chosen = causes.get(name)
+    chosen = _cause(name)
     return chosen, chosen.check_strength(strength)
+
+
+def _cause(name: str) -> Effect:
+    """A registered effect other than the baseline, by name, else ValueError listing them."""
+    if name == "baseline" or name not in REGISTRY:
+        raise ValueError(f"effect = {name!r}: unknown; choose one of {', '.join(causes.names(catalogued_only=False))}")
+    return causes.get(name)
 
 
 # --------------------------------------------------------------------------- one experiment
@@ -482,9 +487,8 @@ def campaign(
     chosen, s = _effect(effect, strength)
     conds = _conditions(conditions)
     proc = noise_process(noise)
-    if n_particles is not None:
-        chosen_n = replace(proc or NOISE_PROCESSES["persistent"], n_particles=n_particles)
-        proc = chosen_n if proc is not None else None
+    if n_particles is not None and proc is not None:
+        proc = replace(proc, n_particles=n_particles)
     if not smoothing_s >= 0:
         raise ValueError(f"smoothing_s = {smoothing_s!r} s must be >= 0")
     opts = dict(noise=proc, smoothing_s=float(smoothing_s),
@@ -517,11 +521,9 @@ def _write(out: Path, arrays: list[dict[str, Any]], save_map: Any, force: bool, 
 #: Strength ranges of the hidden-effect draws (:func:`random_effect`): sizes a
 #: 16-experiment campaign at the paper's noise can resolve (each effect's ``draw_range``).
 EFFECT_RANGES: dict[str, tuple[float, float]] = {
-    n: causes.get(n).draw_range for n in EFFECTS[1:] if causes.get(n).draw_range is not None}
+    n: REGISTRY[n].draw_range for n in EFFECTS[1:] if REGISTRY[n].draw_range is not None}
 
 
 def random_effect(effect: str, seed: int | None = None) -> tuple[float, dict[str, float]]:
     """A seeded random ``(strength, effect_params)`` for ``effect`` (its ``draw``)."""
-    if effect == "baseline" or effect not in REGISTRY:
-        raise ValueError(f"effect = {effect!r}: unknown; known: {', '.join(causes.names(catalogued_only=False))}")
-    return causes.get(effect).draw(np.random.default_rng(seed))
+    return _cause(effect).draw(np.random.default_rng(seed))
