@@ -82,6 +82,12 @@ fn defaults() -> HashMap<String, f64> {
         .collect()
 }
 
+/// Parameter names of every law-correction knot (`laws.rs`), default 0.
+#[pyfunction]
+fn law_keys() -> Vec<String> {
+    crate::laws::Laws::keys()
+}
+
 /// Material densities of MODEL.md, kg/m^3.
 #[pyfunction]
 fn materials() -> HashMap<String, f64> {
@@ -326,7 +332,8 @@ fn _panic_for_testing(py: Python<'_>) -> PyResult<()> {
 mod _core {
     #[pymodule_export]
     use super::{
-        _panic_for_testing, default_tolerances, defaults, derived, layer_means, materials,
-        moving_average, simulate, steady_state, sweep, validate, velocity_profile, SolverError,
+        _panic_for_testing, default_tolerances, defaults, derived, law_keys, layer_means,
+        materials, moving_average, simulate, steady_state, sweep, validate, velocity_profile,
+        SolverError,
     };
 }

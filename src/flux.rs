@@ -76,17 +76,26 @@ impl Operator {
         op
     }
 
-    /// Evaluate the (possibly time-dependent) shear profile at time t.
+    /// Evaluate the (possibly time-dependent) shear profile at time t, with
+    /// the depth and time corrections of `laws` (factors of 1 by default).
     #[inline]
     pub fn set_time(&mut self, t: f64) {
-        let drifting = self.p.delta_drift != 0.0;
-        if self.t_faces.is_nan() || (drifting && t != self.t_faces) {
+        let changing = self.p.delta_drift != 0.0 || self.p.laws.time_dependent();
+        if self.t_faces.is_nan() || (changing && t != self.t_faces) {
             let delta = self.p.delta_at(t);
+            let laws = &self.p.laws;
+            let u = t / laws.time_scale;
+            let (rate, diff_t) = (laws.rate_t.factor(u), laws.diff_t.factor(u));
             for f in 0..self.gdot.len() {
-                let g = model::shear_rate(&self.p, delta, self.grid.face(f));
+                let z = self.grid.face(f);
+                let zh = z / self.p.h;
+                let g = model::shear_rate(&self.p, delta, z) * laws.shear_z.factor(zh);
                 self.gdot[f] = g;
-                self.diff[f] = self.p.b * g * self.p.d_p * self.p.d_p / self.grid.dz;
-                self.seg_num[f] = self.stokes * g / self.p.k;
+                self.diff[f] = self.p.b * g * self.p.d_p * self.p.d_p / self.grid.dz
+                    * laws.diff_z.factor(zh)
+                    * diff_t
+                    * rate;
+                self.seg_num[f] = self.stokes * g / self.p.k * rate;
                 self.inertia[f] = g * self.p.d_p * self.p.phi_s.sqrt();
             }
             self.t_faces = t;
@@ -119,12 +128,17 @@ impl Operator {
         // mu = (mu_min s + dmu I) / s, so a = seg_num s / (P (mu_min s + dmu I)).
         let (mu_min, dmu, i0) = (self.p.mu_min, self.p.mu_2 - self.p.mu_min, self.p.i0);
         let (rho_l, drho) = (self.p.rho_l, self.p.rho_h - self.p.rho_l);
+        let flux_law = !self.p.laws.flux_c.is_zero();
         for f in 0..n - 1 {
-            let rho = rho_l + drho * 0.5 * (c[f] + c[f + 1]);
+            let c_face = 0.5 * (c[f] + c[f + 1]);
+            let rho = rho_l + drho * c_face;
             let pres = self.pressure[f];
             let inertial = self.inertia[f] * (rho / pres).sqrt();
             let s = i0 + inertial;
-            let a = self.seg_num[f] * s / (pres * (mu_min * s + dmu * inertial));
+            let mut a = self.seg_num[f] * s / (pres * (mu_min * s + dmu * inertial));
+            if flux_law {
+                a *= self.p.laws.flux_c.factor(c_face);
+            }
             let up = c[f + 1] - 0.5 * self.slope[f + 1];
             let dn = c[f] + 0.5 * self.slope[f];
             self.a[f] = a;

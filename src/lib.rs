@@ -7,6 +7,7 @@
 
 pub mod error;
 pub mod flux;
+pub mod laws;
 pub mod layers;
 pub mod model;
 pub mod params;

@@ -4,6 +4,7 @@
 //! ever copied by hand into another language.
 
 use crate::error::SolveError;
+use crate::laws::Laws;
 
 /// Every physical parameter of the baseline model plus the extension hooks.
 /// SI units throughout.
@@ -51,6 +52,8 @@ pub struct Params {
     pub delta_drift: f64,
     /// Time scale of the drift, s.
     pub delta_drift_time: f64,
+    /// Open-world corrections of the constitutive laws (all zero: MODEL.md).
+    pub laws: Laws,
 }
 
 impl Default for Params {
@@ -76,6 +79,7 @@ impl Default for Params {
             d_out: 0.190,
             delta_drift: 0.0,
             delta_drift_time: 600.0,
+            laws: Laws::default(),
         }
     }
 }
@@ -92,7 +96,7 @@ pub const MATERIALS: [(&str, f64); 5] = [
 type Field = (&'static str, fn(&Params) -> f64, fn(&mut Params, f64));
 
 /// Python-facing names (as in MODEL.md) with accessors, in a fixed order.
-pub const FIELDS: [Field; 20] = [
+pub const FIELDS: [Field; 21] = [
     ("rho_h", |p| p.rho_h, |p, v| p.rho_h = v),
     ("rho_l", |p| p.rho_l, |p, v| p.rho_l = v),
     ("c0", |p| p.c0, |p, v| p.c0 = v),
@@ -121,23 +125,35 @@ pub const FIELDS: [Field; 20] = [
         |p| p.delta_drift_time,
         |p, v| p.delta_drift_time = v,
     ),
+    (
+        "law_time",
+        |p| p.laws.time_scale,
+        |p, v| p.laws.time_scale = v,
+    ),
 ];
 
 impl Params {
-    /// Set a parameter by its MODEL.md name.
+    /// Set a parameter by its MODEL.md name (or a law knot's, see `laws`).
     pub fn set(&mut self, name: &str, value: f64) -> Result<(), SolveError> {
         match FIELDS.iter().find(|f| f.0 == name) {
             Some(f) => {
                 (f.2)(self, value);
                 Ok(())
             }
-            None => Err(SolveError::UnknownParameter(name.to_string())),
+            None => self
+                .laws
+                .set(name, value)
+                .ok_or_else(|| SolveError::UnknownParameter(name.to_string())),
         }
     }
 
-    /// Read a parameter by its MODEL.md name.
+    /// Read a parameter by its MODEL.md name (or a law knot's).
     pub fn get(&self, name: &str) -> Option<f64> {
-        FIELDS.iter().find(|f| f.0 == name).map(|f| (f.1)(self))
+        FIELDS
+            .iter()
+            .find(|f| f.0 == name)
+            .map(|f| (f.1)(self))
+            .or_else(|| self.laws.get(name))
     }
 
     /// Build from (name, value) pairs on top of the defaults, then validate.
@@ -238,6 +254,7 @@ impl Params {
                 "> 0 s",
             ),
         ];
+        self.laws.validate()?;
         for (name, value, ok, range) in checks {
             if !value.is_finite() || !ok {
                 return Err(SolveError::InvalidParameter {

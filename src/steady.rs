@@ -86,6 +86,11 @@ impl Shooter<'_> {
 /// `Grid::centres`). `sub_steps` RK4 steps per cell (rounded up to even);
 /// the result is converged to ~1e-10 for sub_steps >= 16 at 180 cells.
 pub fn steady_state(p: &Params, n_cells: usize, sub_steps: usize) -> Result<Vec<f64>, SolveError> {
+    if p.laws.active() {
+        return Err(SolveError::InvalidInput(
+            "steady_state: the law corrections (law_*) are not supported; simulate to long times instead".into(),
+        ));
+    }
     p.validate()?;
     if n_cells < 15 {
         return Err(SolveError::InvalidInput(format!(

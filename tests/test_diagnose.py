@@ -56,15 +56,42 @@ def test_noise_floor_matches_the_true_noise_within_ten_percent():
 
 
 def test_decision_rule():
-    floor = 0.05
-    v = selection.decide({"a": 0.01, "b": 0.0}, floor, 0.09, {"a": 0.051, "b": 0.09})
+    floor, quiet = 0.05, 0.5
+
+    def mis(rmsd: float, p: float = quiet, counted: bool = True, share: float = 0.6) -> selection.Misfit:
+        return selection.misfit(rmsd, floor, counted, selection.Coherence(p, share))
+
+    v = selection.decide({"a": 0.01, "b": 0.0}, 0.1, mis(0.09), {"a": mis(0.051), "b": mis(0.09)})
     assert (v.cause, v.explained, v.runner_up) == ("a", True, "b")
-    v = selection.decide({"a": 0.01}, floor, 0.09, {"a": 0.08})
+    v = selection.decide({"a": 0.01}, 0.1, mis(0.09), {"a": mis(0.08)})
     assert (v.cause, v.explained) == ("a", False)
-    v = selection.decide({"a": 1e-5}, floor, 0.0501, {"a": 0.05})
+    # a gain under 2 % of the held-out RMSD names nothing
+    v = selection.decide({"a": 0.0019}, 0.1, mis(0.0501), {"a": mis(0.05)})
     assert (v.cause, v.explained) == ("none", True)
-    v = selection.decide({"a": 1e-5}, floor, 0.08, {"a": 0.08})
+    v = selection.decide({"a": 1e-5}, 0.1, mis(0.08), {"a": mis(0.08)})
     assert (v.cause, v.explained) == ("unexplained", False)
+    # a pattern shared by the experiments is structured whatever the floor says...
+    v = selection.decide({"a": 1e-5}, 0.1, mis(0.05, p=1e-4), {"a": mis(0.05)})
+    assert v.cause == "unexplained"
+    # ...unless it is too small a share of the misfit to matter
+    assert not mis(0.05, p=1e-4, share=0.2).structured
+    # ...and without counts the floor (a lower bound) is not used at all
+    assert not mis(0.08, counted=False).structured
+    assert "lower bound" in mis(0.08, counted=False).why
+
+
+def test_coherence_finds_a_shared_pattern_and_not_independent_noise():
+    maps = campaign(conditions=random_conditions(14, seed=4), seed=4)
+    exps = [ExpInfo.of(m) for m in maps]
+    rng = np.random.default_rng(0)
+    truth = [m.c.copy() for m in maps]
+    # persistent noise: one random offset per layer for the whole run, independent between runs
+    noisy = [t + rng.normal(0, 0.05, size=(1, t.shape[1])) for t in truth]
+    assert selection.coherence(maps, exps, noisy).p > 0.01
+    # the same offset pattern in every run (a model error) is found
+    shared = rng.normal(0, 0.05, size=(1, truth[0].shape[1]))
+    found = selection.coherence(maps, exps, [t + shared for t in truth])
+    assert found.p < selection.COHERENCE_ALPHA and found.share > selection.COHERENCE_SHARE
 
 
 def test_one_step_leave_one_out_matches_exact_refits():

@@ -36,9 +36,27 @@ def test_baseline_only_campaign_is_called_none():
     assert r["explained"] is True and r["extended"] is None
 
 
-def test_effect_outside_the_catalogue_is_not_passed_off_as_explained():
+def test_maps_without_counts_are_not_called_unexplained():
+    # the independent generator's failure: no counts, so the floor from the map's scatter is
+    # half the real noise (grains stay in view); the verdict must not rest on it
+    maps = campaign(conditions=random_conditions(10, 12), noise="no_counts", seed=12)
+    r = diagnose(maps, progress=False).result
+    assert r["decision"]["noise_floor_counted"] is False
+    assert r["baseline"]["rmsd_mean"] > 1.5 * r["noise_floor"]
+    assert r["cause"] == "none", r["decision"]
+
+
+def test_a_confusion_of_the_two_kinds_is_measured_not_mistaken_for_physics():
+    strength, _ = random_effect("misclassification", 13)
     r = _run("misclassification", seed=13, n=10)
-    assert r["cause"] == "unexplained" or r["explained"] is False, r["decision"]
+    assert r["cause"] == "none", r["decision"]
+    conf = r["noise"]["confusion"].values()
+    assert all(v["applied"] for v in conf)
+    # the grains of one layer stay in view while it is pure: each pair's share is good to a few
+    # hundredths, their grain-weighted mean to about one
+    assert all(abs(v["share"] - strength) < 3 * v["stderr"] for v in conf), (strength, conf)
+    pooled = sum(v["share"] * v["grains"] for v in conf) / sum(v["grains"] for v in conf)
+    assert abs(pooled - strength) < 0.02, (strength, pooled)
 
 
 @pytest.mark.slow

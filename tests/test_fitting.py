@@ -70,11 +70,12 @@ def test_shifted_times_map_plate_times_to_model_rows():
 
 
 class _Compaction(Effect):
-    """A toy cause written in this test file only: the bed settles, so the wall's heavy
-    share lags the bed by a fixed share ``lag`` of the way to the final state."""
+    """A toy cause written in this test file only: where the bed is mixed, the wall's heavy
+    share lags the bed by a share ``lag`` of the way back to c0 (pure layers show pure;
+    a lag there too would be a confusion of the two kinds, which calibrate measures)."""
 
     name = "toy_wall_lag"
-    description = "Toy: the wall shows c_wall = c + lag (c0 - c)."
+    description = "Toy: the wall shows c_wall = c + lag (c0 - c) 4 c (1 - c)."
     draw_range = (0.2, 0.4)
     strength_limits = (0.0, 0.9)
 
@@ -82,7 +83,7 @@ class _Compaction(Effect):
         return [Param("lag", -0.5, 0.9, 0.0, 0.005)]
 
     def observe(self, x: Mapping[str, float], exp: ExpInfo, layers: np.ndarray) -> np.ndarray:
-        return layers + x["lag"] * (exp.c0 - layers)
+        return layers + x["lag"] * (exp.c0 - layers) * 4.0 * layers * (1.0 - layers)
 
 
 @pytest.fixture

@@ -260,3 +260,37 @@ def test_the_frame_pipeline_does_not_load_the_solver():
             "assert 'granseg._core' not in sys.modules and 'granseg.model' not in sys.modules, "
             "sorted(m for m in sys.modules if m.startswith('granseg'))")
     subprocess.run([sys.executable, "-c", code], check=True)
+
+
+law_tables = st.lists(floats(-2.0, 2.0), min_size=17, max_size=17)
+
+
+@given(delta_r=floats(1.0, 8.0), c0=floats(0.1, 0.9), table=law_tables,
+       law=st.sampled_from(["law_flux_c", "law_diff_z", "law_diff_t", "law_shear_z", "law_rate_t"]))
+def test_law_corrections_keep_mass_and_bounds(delta_r, c0, table, law):
+    knots = {f"{law}_{i}": v for i, v in enumerate(table)}
+    sol = granseg.simulate(rho_h=delta_r * RHO_L, rho_l=RHO_L, c0=c0, t=[0.0, 30.0, 300.0, 1800.0],
+                           n_cells=60, law_time=1800.0, **knots)
+    mean = sol.c.mean(axis=1)
+    assert np.max(np.abs(mean - mean[0]) / mean[0]) <= 1e-12
+    assert sol.c.min() >= 0.0 and sol.c.max() <= 1.0
+
+
+def test_law_corrections_are_the_baseline_at_zero_and_act_where_they_say():
+    t = np.linspace(0.0, 1200.0, 41)
+    base = granseg.simulate(t=t, n_cells=90).layers()
+    zero = granseg.simulate(t=t, n_cells=90, **{k: 0.0 for k in granseg.model.LAW_KEYS}).layers()
+    np.testing.assert_array_equal(base, zero)
+    # more diffusion in the upper half only: the bottom layers do not feel it in the first minute
+    upper = {f"law_diff_z_{i}": 1.5 for i in range(10, 17)}
+    up = granseg.simulate(t=t, n_cells=90, **upper).layers()
+    assert np.abs(up - base)[:3, :3].max() < 1e-3 < np.abs(up - base)[:, 9:].max()
+    # a time table that is zero until 7/8 of law_time changes (next to) nothing before it
+    late = granseg.simulate(t=t, n_cells=90, law_time=600.0, law_rate_t_16=1.0, law_rate_t_15=1.0).layers()
+    assert np.abs(late - base)[t <= 0.8 * 600.0].max() < 1e-4 < np.abs(late - base).max()
+    with pytest.raises(ValueError, match="law_flux_c_3"):
+        granseg.simulate(t=t, law_flux_c_3=9.0)
+    with pytest.raises(ValueError, match="law_time"):
+        granseg.simulate(t=t, law_time=-1.0)
+    with pytest.raises(ValueError, match="law"):
+        granseg.steady_state(law_diff_z_2=0.5)

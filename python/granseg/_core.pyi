@@ -33,6 +33,9 @@ class SolverStats(TypedDict):
 def defaults() -> dict[str, float]:
     """Default value of every model parameter (MODEL.md), SI units."""
 
+def law_keys() -> list[str]:
+    """Parameter names of every knot of the open-world law corrections (default 0)."""
+
 def materials() -> dict[str, float]:
     """Material densities of MODEL.md, kg/m^3."""
 

@@ -12,7 +12,12 @@ model evaluation is one parallel sweep over all experiments:
    on the residuals of every (time, layer) entry of every experiment, each
    experiment weighted so that it counts once (see
    :mod:`granseg.fitting.observe`). Standard errors by the ``"jacobian"``
-   estimator of :mod:`granseg.fitting.solve`.
+   estimator of :mod:`granseg.fitting.solve`. Where the maps show grains of
+   one kind in layers the refined model calls pure at the stratified start
+   (a confusion of the two kinds by the frame analysis), the confusion is
+   measured there (:mod:`granseg.fitting.confusion`), put into the
+   observation step and the refinement repeated; ``settings["confusion"]``
+   records it per material pair.
 
 The model map is compared on the measured grid: the layer means at the
 measured times, smoothed with the moving average the map records.
@@ -40,7 +45,17 @@ from typing import Any
 
 import numpy as np
 
-from granseg.fitting import BASE_PARAMS, Baseline, Data, Fit, Param, evaluate, factorial, fit
+from granseg.fitting import (
+    BASE_PARAMS,
+    Baseline,
+    Data,
+    Fit,
+    Param,
+    confusion,
+    evaluate,
+    factorial,
+    fit,
+)
 from granseg.maps import Campaign, Map, check_accepted, load_campaign
 from granseg.model import defaults
 
@@ -291,13 +306,15 @@ def calibrate(
     params = _free_params(grid, bnds, x0, fd_rel)
     if refine:
         f = fit(data, Baseline(), params=params, max_nfev=max_nfev, errors="jacobian")
+        f = _with_confusion(data, f, params, max_nfev)
     else:
         f = evaluate(data, Baseline(), params, dict(zip(keys, x0, strict=True)))
         f.message = "grid only"
     per = _per_experiment(data, table, points, params, max_nfev) if per_experiment else None
     settings = {"grid": grid, "bounds": {p.name: [p.lo, p.hi] for p in params},
                 "base": dict(base or {}), **data.solver_settings(), "fd_rel": fd_rel, "max_nfev": max_nfev,
-                "errors": f.error_method, "n_sweeps": data.n_sweeps, "n_runs": data.n_runs}
+                "errors": f.error_method, "n_sweeps": data.n_sweeps, "n_runs": data.n_runs,
+                "confusion": data.confusion_record}
     cal = Calibration(
         names=data.names, keys=keys, grid_points=points, grid_rmsd=table,
         best=f.values(), stderr=f.errors(), rmsd=dict(zip(data.names, map(float, f.rmsd), strict=True)),
@@ -311,6 +328,19 @@ def calibrate(
                       CalibrationWarning, stacklevel=2)
     log(f"done: {data.n_runs} runs in {data.n_sweeps} sweeps, {cal.elapsed:.1f} s")
     return cal
+
+
+def _with_confusion(data: Data, f: Fit, params: list[Param], max_nfev: int) -> Fit:
+    """Measure the two kinds' confusion on the stratified start (:mod:`granseg.fitting.confusion`)
+    and, where it is resolved, refit with it in the observation step."""
+    conf = confusion.measure(data.maps, f.layers, [e.pair for e in data.exps])
+    data.confusion_record = conf.to_dict()
+    if not conf.share.any():
+        return f
+    data.confusion = conf.share
+    applied = {p: round(float(v["share"]), 4) for p, v in conf.by_pair.items() if v["applied"]}
+    data.log(f"measured confusion of the two kinds on the stratified start: {applied}; refitting with it")
+    return fit(data, Baseline(), params=params, x0=f.values(), max_nfev=max_nfev, errors="jacobian")
 
 
 def _bounds_arrays(keys: list[str], bounds: Mapping[str, tuple[float, float]] | None,

@@ -21,6 +21,7 @@ from granseg.errors import SolverError
 
 __all__ = [
     "MATERIALS",
+    "LAW_KEYS",
     "PARAMETERS",
     "Solution",
     "SweepResult",
@@ -37,6 +38,11 @@ MATERIALS: dict[str, float] = dict(_core.materials())
 _DEFAULTS: dict[str, float] = dict(_core.defaults())
 #: Names of every model parameter, in MODEL.md's notation.
 PARAMETERS: tuple[str, ...] = tuple(sorted(_DEFAULTS))
+#: Knots of the open-world law corrections (``law_flux_c_0`` ...; default 0, i.e. MODEL.md):
+#: log-factors of the segregation speed by c, the diffusivity by z/H and by t/law_time, the
+#: shear rate by z/H and both rates by t/law_time, 17 knots each (see the core's laws.rs).
+LAW_KEYS: tuple[str, ...] = tuple(_core.law_keys())
+_LAW_KEY_SET = frozenset(LAW_KEYS)
 RTOL, ATOL = _core.default_tolerances()
 N_CELLS = 180
 
@@ -50,7 +56,7 @@ def _params(overrides: Mapping[str, Any], where: str = "") -> dict[str, float]:
     """Defaults updated with ``overrides``, checked by name, type and range."""
     out = dict(_DEFAULTS)
     for name, value in overrides.items():
-        if name not in _DEFAULTS:
+        if name not in _DEFAULTS and name not in _LAW_KEY_SET:
             raise ValueError(
                 f"{where}unknown model parameter {name!r}; known: {', '.join(PARAMETERS)}"
             )
@@ -252,7 +258,7 @@ def _grid_points(grid: Mapping[str, Iterable[float]] | None) -> list[dict[str, f
         raise ValueError("grid must be a dict mapping parameter names to lists of values")
     keys, values = [], []
     for name, vals in grid.items():
-        if name not in _DEFAULTS:
+        if name not in _DEFAULTS and name not in _LAW_KEY_SET:
             raise ValueError(f"grid: unknown model parameter {name!r}; known: {', '.join(PARAMETERS)}")
         vals = list(np.atleast_1d(np.asarray(vals, dtype=object)))
         if not vals:

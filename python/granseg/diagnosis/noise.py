@@ -47,6 +47,11 @@ class NoiseEstimate:
     rho: np.ndarray
     method: str
 
+    @property
+    def counted(self) -> bool:
+        """True when the floor comes from the map's counts (a model of the noise, not a lower bound)."""
+        return self.method.startswith("counts")
+
 
 def _ma_factor(rho: np.ndarray, n_t: int, window: int) -> np.ndarray:
     """Variance reduction (n_t,) of the centred moving average of noise with

@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING, Any, TypedDict
 
 import numpy as np
 
+from granseg.diagnosis.selection import Misfit
 from granseg.fitting import REGISTRY, Fit
 
 if TYPE_CHECKING:
@@ -57,15 +58,28 @@ class GainJSON(TypedDict):
     per_experiment_held_out: dict[str, float]
 
 
+class MisfitJSON(TypedDict):
+    rmsd_over_floor: float | None
+    coherence_p: float
+    coherence_share: float
+    structured: bool
+    why: str
+
+
 class DecisionJSON(TypedDict):
     reason: str
     best_candidate: str | None
     runner_up: str | None
-    gain_over_floor: float
-    baseline_rmsd_over_floor: float
+    gain_relative: float
+    baseline_rmsd_over_floor: float | None
+    baseline_misfit: MisfitJSON
+    extended_misfit: MisfitJSON | None
+    noise_floor_counted: bool
     margin_to_runner_up: float
     gain_threshold: float
     excess_threshold: float
+    coherence_alpha: float
+    coherence_share: float
 
 
 class DiagnosisJSON(TypedDict, total=False):
@@ -83,6 +97,18 @@ class DiagnosisJSON(TypedDict, total=False):
     experiments: list[dict[str, Any]]
     settings: dict[str, Any]
     report: str
+
+
+def _finite(v: float) -> float | None:
+    return float(v) if np.isfinite(v) else None
+
+
+def _misfit(m: Misfit | None) -> MisfitJSON | None:
+    if m is None:
+        return None
+    return MisfitJSON(rmsd_over_floor=_finite(m.excess), coherence_p=m.coherence_p,
+                      coherence_share=m.coherence_share, structured=m.structured,
+                      why=m.why)
 
 
 def _by_name(names: list[str], values: Any) -> dict[str, float]:
@@ -144,13 +170,19 @@ def build_result(d: Diagnosis) -> DiagnosisJSON:
         cause=v.cause, explained=v.explained,
         summary=summary(v.cause, v.explained, ext, base, d.floor, d.data.n),
         noise_floor=d.floor,
-        noise={"per_experiment": {e.name: e.floor for e in d.noise}, "method": d.noise[0].method},
+        noise={"per_experiment": {e.name: e.floor for e in d.noise}, "method": d.noise[0].method,
+               "confusion": d.data.confusion_record},
         baseline=base, extended=ext, gain=_gain(full, ext, d.gains.get(v.cause, 0.0)),
         candidates=[_candidate(d, n, f) for n, f in d.fits.items()],
         decision=DecisionJSON(reason=v.reason, best_candidate=v.best, runner_up=v.runner_up,
-                              gain_over_floor=v.gain_ratio, baseline_rmsd_over_floor=v.excess_ratio,
+                              gain_relative=v.gain_relative,
+                              baseline_rmsd_over_floor=_finite(v.baseline.excess),
+                              baseline_misfit=_misfit(v.baseline), extended_misfit=_misfit(v.extended),
+                              noise_floor_counted=all(e.counted for e in d.noise),
                               margin_to_runner_up=v.margin, gain_threshold=d.thresholds["gain"],
-                              excess_threshold=d.thresholds["excess"]),
+                              excess_threshold=d.thresholds["excess"],
+                              coherence_alpha=d.thresholds["coherence_alpha"],
+                              coherence_share=d.thresholds["coherence_share"]),
         evidence=dict(d.evidence),
         experiments=[{"name": e.name, "heavy": e.heavy, "light": e.light, "c0": e.c0, "M_g": e.M_g,
                       "M_w": e.M_w, "M_tilde": e.M_tilde, "delta_R": e.delta_R} for e in d.data.exps],

@@ -40,7 +40,8 @@ class Diagnosis:
     :class:`~granseg.fitting.Fit` and ``fits`` the candidates'; ``held_out``
     and ``held_out_layers`` the leave-one-out RMSDs and maps by model name;
     ``gains`` the held-out gain [-] of each candidate; ``floor`` and ``noise``
-    the noise floor [-]; ``thresholds`` the decision thresholds this call used.
+    the noise floor [-]; ``thresholds`` the decision thresholds this call used;
+    ``misfits`` each candidate's misfit tests (the baseline's is in ``verdict``).
     """
 
     maps: list[Map]
@@ -56,6 +57,7 @@ class Diagnosis:
     evidence: Evidence
     verdict: selection.Verdict
     thresholds: dict[str, float]
+    misfits: dict[str, selection.Misfit] = field(default_factory=dict)
     timing: dict[str, float] = field(default_factory=dict)
     report_path: str | None = None
 
@@ -115,6 +117,8 @@ def diagnose(
     max_nfev: int = 25,
     gain_threshold: float = selection.GAIN_THRESHOLD,
     excess_threshold: float = selection.EXCESS_THRESHOLD,
+    coherence_alpha: float = selection.COHERENCE_ALPHA,
+    coherence_share: float = selection.COHERENCE_SHARE,
     progress: bool = True,
     accept_flagged: bool = False,
 ) -> Diagnosis:
@@ -133,9 +137,11 @@ def diagnose(
     n_cells : finite-volume cells of the model runs.
     rtol, atol : solver tolerances (default: the core's).
     max_nfev : cap on residual evaluations (one sweep each) per fit.
-    gain_threshold, excess_threshold : the decision thresholds in units of the
-        noise floor (defaults calibrated on null campaigns, see
-        :mod:`granseg.diagnosis.selection`).
+    gain_threshold, excess_threshold, coherence_alpha, coherence_share : the
+        decision thresholds: held-out gain relative to the baseline's held-out
+        RMSD, mean RMSD over the counted noise floor, p-value and energy share
+        of a residual pattern across experiments (defaults calibrated on null campaigns under every
+        named noise process, see :mod:`granseg.diagnosis.selection`).
     progress : log each step to stderr.
     accept_flagged : use maps that failed their frame-analysis quality checks
         (refused by default with :class:`granseg.errors.FlaggedMapError`).
@@ -165,13 +171,21 @@ def diagnose(
     for name, f in {"baseline": base, **fits}.items():
         held[name], held_layers[name], _ = loo_predict(data, f)
     gains = {n: selection.held_out_gain(held["baseline"], held[n]) for n in fits}
-    verdict = selection.decide(gains, floor, base.rmsd_mean, {n: f.rmsd_mean for n, f in fits.items()},
-                               gain_threshold=gain_threshold, excess_threshold=excess_threshold)
+    counted = all(e.counted for e in noise)
+    misfits = {n: selection.misfit(f.rmsd_mean, floor, counted,
+                                   selection.coherence(maps, data.exps, f.layers, selection.model_jacobians(data, f)),
+                                   excess_threshold=excess_threshold, coherence_alpha=coherence_alpha,
+                                   coherence_share=coherence_share)
+               for n, f in {"baseline": base, **fits}.items()}
+    verdict = selection.decide(gains, float(np.mean(held["baseline"])), misfits.pop("baseline"), misfits,
+                               gain_threshold=gain_threshold)
     timing["total"] = time.perf_counter() - t_start
     log(f"verdict: {verdict.cause} ({verdict.reason}); {data.n_runs} model runs in "
         f"{data.n_sweeps} sweeps, {timing['total']:.1f} s")
     diag = Diagnosis(maps, data, calibration, base, fits, held, held_layers, gains, floor, noise, ev, verdict,
-                     {"gain": float(gain_threshold), "excess": float(excess_threshold)}, timing)
+                     {"gain": float(gain_threshold), "excess": float(excess_threshold),
+                      "coherence_alpha": float(coherence_alpha), "coherence_share": float(coherence_share)},
+                     misfits, timing)
     _write_outputs(diag, json, report, force, log)
     return diag
 

@@ -6,6 +6,8 @@
   the diagnosis and the virtual campaigns of :mod:`granseg.synth`;
 * :mod:`~granseg.fitting.observe`: the observation step (time shift, model
   layers, observation transform, the map's moving average, residual);
+* :mod:`~granseg.fitting.confusion`: the two kinds' confusion, measured on
+  the stratified start of every run and applied in the observation step;
 * :mod:`~granseg.fitting.solve`: one bounded least squares with standard
   errors, the factorial table, leave-one-experiment-out.
 
@@ -13,7 +15,7 @@
 ``granseg.diagnose`` starts from that calibration.
 """
 
-from granseg.fitting import causes
+from granseg.fitting import causes, confusion
 from granseg.fitting.effects import (
     BASE_PARAMS,
     REGISTRY,
@@ -37,6 +39,7 @@ __all__ = [
     "Fit",
     "Param",
     "causes",
+    "confusion",
     "covariance",
     "evaluate",
     "factorial",

@@ -3,7 +3,8 @@
 For an effect, a parameter set and one experiment::
 
     time shift -> model layer means at the measured times -> observation
-    transform -> the map's moving average -> residual against the map
+    transform -> the measured confusion of the two kinds -> the map's moving
+    average -> residual against the map
 
 Every model evaluation of a fit, a factorial table or a leave-one-out
 prediction goes through :func:`model_maps`, which puts all its runs (every
@@ -57,6 +58,10 @@ class Data:
     opts: dict[str, Any]
     fixed: dict[str, float] = field(default_factory=dict)
     log: Callable[[str], None] = field(default=lambda msg: None)
+    #: measured confusion share of each experiment [-] (:mod:`granseg.fitting.confusion`), None: not measured
+    confusion: np.ndarray | None = None
+    #: the confusion measurement per material pair (JSON-ready), None: not measured
+    confusion_record: dict[str, Any] | None = None
     n_runs: int = 0
     n_sweeps: int = 0
     sweep_seconds: float = 0.0
@@ -125,6 +130,8 @@ def model_maps(data: Data, effect: Effect, runs: Sequence[tuple[Mapping[str, flo
     out = []
     for (x, i), raw, index in zip(runs, res.layers, rows, strict=True):
         seen = effect.observe(x, data.exps[i], np.asarray(raw)[index])
+        if data.confusion is not None and data.confusion[i] > 0:
+            seen = data.confusion[i] + (1.0 - 2.0 * data.confusion[i]) * seen
         out.append(moving_average(seen, data.maps[i].smoothing_frames, axis=0))
     return out
 

@@ -151,21 +151,21 @@ def _log_ticks(axis: Any, values: Any) -> None:
 
 
 def candidates(d: Diagnosis) -> Figure:
-    """Held-out gain of each candidate, in noise-floor units, with the significance threshold."""
+    """Held-out gain of each candidate, relative to the baseline's held-out RMSD, with the threshold."""
     r = d.result
-    floor = r["noise_floor"]
+    base = r["baseline"]["rmsd_held_out_mean"]
     cands = sorted(r["candidates"], key=lambda c: c["gain_held_out"])
-    thr = r["decision"]["gain_threshold"]
+    thr = 100 * r["decision"]["gain_threshold"]
     with style():
         fig = new_figure(5.0, 0.35 * len(cands) + 1.2)
         ax = fig.subplots()
-        vals = [c["gain_held_out"] / floor for c in cands]
+        vals = [100 * c["gain_held_out"] / base for c in cands]
         cols = ["#009E73" if c["name"] == r["cause"] else "#999999" for c in cands]
         ax.barh([c["name"].replace("_", " ") for c in cands], vals, color=cols)
-        ax.axvline(thr, color="#D55E00", ls="--", lw=1, label=f"significance threshold ({thr:.2f})")
+        ax.axvline(thr, color="#D55E00", ls="--", lw=1, label=f"significance threshold ({thr:.1f} %)")
         ax.axvline(0, color="k", lw=0.6)
-        ax.set_xlabel("held-out RMSD gain over the baseline / noise floor [-]")
-        ax.set_title(f"Leave-one-experiment-out comparison (noise floor {floor:.3f})", loc="left")
+        ax.set_xlabel("held-out RMSD gain over the baseline [% of its held-out RMSD]")
+        ax.set_title(f"Leave-one-experiment-out comparison (baseline held out {base:.3f})", loc="left")
         ax.legend(loc="lower right")
     return fig
 

@@ -43,10 +43,14 @@ wall view with no counting and no smoothing):
                       the frames (round(share x n_t), chosen at random) is
                       missing: n = n_heavy = 0, c_raw = c = NaN in those rows
 ``variable_counts``   persistent with 8 to 12 spheres per layer and frame
+``no_counts``         persistent, and the map keeps only the smoothed ``c`` (no
+                      ``n``, ``n_heavy``, ``c_raw``): the noise floor can then
+                      only be bounded from the map's scatter
 ===================  ==========================================================
 
 Every process has the fields of :class:`NoiseProcess` (``persistent``,
-``n_particles``, ``misclassified``, ``boundary_flips``, ``dropped_frames``),
+``n_particles``, ``misclassified``, ``boundary_flips``, ``dropped_frames``,
+``counts``),
 so mechanisms combine, e.g. ``NoiseProcess(persistent=False,
 misclassified=0.1)``; ``campaign.json`` records the process used.
 
@@ -196,6 +200,8 @@ class NoiseProcess:
         in a neighbouring layer, in [0, 0.5].
     dropped_frames : share [-] of the frames missing (n = 0, c_raw = c = NaN),
         in [0, 0.5].
+    counts : the map records its counts (``n``, ``n_heavy``, ``c_raw``);
+        False writes only the smoothed ``c``, as a map from other software may.
     name : a label recorded in ``campaign.json``.
 
     Bad values raise ValueError naming the field.
@@ -207,6 +213,7 @@ class NoiseProcess:
     misclassified: float = 0.0
     boundary_flips: float = 0.0
     dropped_frames: float = 0.0
+    counts: bool = True
 
     def __post_init__(self) -> None:
         if not isinstance(self.name, str) or not self.name.strip():
@@ -214,6 +221,9 @@ class NoiseProcess:
         if not isinstance(self.persistent, bool | np.bool_):
             raise ValueError(f"noise.persistent = {self.persistent!r}: need True or False")
         object.__setattr__(self, "persistent", bool(self.persistent))
+        if not isinstance(self.counts, bool | np.bool_):
+            raise ValueError(f"noise.counts = {self.counts!r}: need True or False")
+        object.__setattr__(self, "counts", bool(self.counts))
         object.__setattr__(self, "n_particles", _n_range(self.n_particles))
         for key, (hi, closed) in _SHARE_LIMITS.items():
             value = getattr(self, key)
@@ -251,6 +261,7 @@ NOISE_PROCESSES: dict[str, NoiseProcess] = {p.name: p for p in (
     NoiseProcess("boundary_flips", boundary_flips=0.05),
     NoiseProcess("dropped_frames", dropped_frames=0.03),
     NoiseProcess("variable_counts", n_particles=(8, 12)),
+    NoiseProcess("no_counts", counts=False),
 )}
 
 
@@ -406,6 +417,8 @@ def _experiment(cond: Condition, effect: Effect, strength: float, base: Mapping[
         c_raw = np.where(n > 0, n_heavy / np.maximum(n, 1), np.nan)
     c = np.clip(moving_average(c_raw, window), 0.0, 1.0)
     c[np.isnan(c_raw)] = np.nan  # no reading stays no reading (as the frame analysis writes it)
+    if not proc.counts:
+        return {**out, "c": c, "smoothing_frames": window}
     return {**out, "c": c, "c_raw": c_raw, "n": n, "n_heavy": n_heavy, "smoothing_frames": window}
 
 
