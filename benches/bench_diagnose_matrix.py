@@ -94,7 +94,7 @@ def main() -> None:
     out = Path(args.out)
     out.write_text(json.dumps(summary, indent=2) + "\n")
     md = table(rows) + "\n\n" + "\n".join(
-        f"- {k}: {v:.3g}" for k, v in summary.items() if k != "runs") + "\n"
+        f"- {k}: {v:.3g}" if isinstance(v, float | int) else f"- {k}: {v}" for k, v in summary.items() if k != "runs") + "\n"
     out.with_suffix(".md").write_text(md)
     print(md)
 
