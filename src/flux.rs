@@ -30,6 +30,8 @@ pub struct Operator {
     inertia: Vec<f64>,
     /// Time at which gdot/diff were last evaluated (drifting delta only).
     t_faces: f64,
+    /// Any law correction non-zero (`laws.rs`), fixed for the run.
+    laws_active: bool,
     // scratch filled by `rhs` and reused by the Jacobian
     pub(crate) pressure: Vec<f64>,
     pub(crate) a: Vec<f64>,
@@ -64,6 +66,7 @@ impl Operator {
             seg_num: vec![0.0; nf],
             inertia: vec![0.0; nf],
             t_faces: f64::NAN,
+            laws_active: p.laws.active(),
             pressure: vec![0.0; nf],
             a: vec![0.0; nf],
             c_up: vec![0.0; nf],
@@ -84,17 +87,26 @@ impl Operator {
         if self.t_faces.is_nan() || (changing && t != self.t_faces) {
             let delta = self.p.delta_at(t);
             let laws = &self.p.laws;
+            // without corrections (the baseline, and every drifting-band run) no exp per face
+            let on = self.laws_active;
             let u = t / laws.time_scale;
-            let (rate, diff_t) = (laws.rate_t.factor(u), laws.diff_t.factor(u));
+            let (rate, diff_t) = if on {
+                (laws.rate_t.factor(u), laws.diff_t.factor(u))
+            } else {
+                (1.0, 1.0)
+            };
             for f in 0..self.gdot.len() {
                 let z = self.grid.face(f);
                 let zh = z / self.p.h;
-                let g = model::shear_rate(&self.p, delta, z) * laws.shear_z.factor(zh);
+                let (shear_z, diff_z) = if on {
+                    (laws.shear_z.factor(zh), laws.diff_z.factor(zh))
+                } else {
+                    (1.0, 1.0)
+                };
+                let g = model::shear_rate(&self.p, delta, z) * shear_z;
                 self.gdot[f] = g;
-                self.diff[f] = self.p.b * g * self.p.d_p * self.p.d_p / self.grid.dz
-                    * laws.diff_z.factor(zh)
-                    * diff_t
-                    * rate;
+                self.diff[f] =
+                    self.p.b * g * self.p.d_p * self.p.d_p / self.grid.dz * diff_z * diff_t * rate;
                 self.seg_num[f] = self.stokes * g / self.p.k * rate;
                 self.inertia[f] = g * self.p.d_p * self.p.phi_s.sqrt();
             }

@@ -61,17 +61,17 @@ def test_decision_rule():
     def mis(rmsd: float, p: float = quiet, counted: bool = True, share: float = 0.6) -> selection.Misfit:
         return selection.misfit(rmsd, floor, counted, selection.Coherence(p, share))
 
-    v = selection.decide({"a": 0.01, "b": 0.0}, 0.1, mis(0.09), {"a": mis(0.051), "b": mis(0.09)})
+    v = selection.decide({"a": 0.01, "b": 0.0}, 0.1, mis(0.09), {"a": mis(0.051), "b": mis(0.09)}.get)
     assert (v.cause, v.explained, v.runner_up) == ("a", True, "b")
-    v = selection.decide({"a": 0.01}, 0.1, mis(0.09), {"a": mis(0.08)})
+    v = selection.decide({"a": 0.01}, 0.1, mis(0.09), {"a": mis(0.08)}.get)
     assert (v.cause, v.explained) == ("a", False)
     # a gain under 2 % of the held-out RMSD names nothing
-    v = selection.decide({"a": 0.0019}, 0.1, mis(0.0501), {"a": mis(0.05)})
+    v = selection.decide({"a": 0.0019}, 0.1, mis(0.0501), {"a": mis(0.05)}.get)
     assert (v.cause, v.explained) == ("none", True)
-    v = selection.decide({"a": 1e-5}, 0.1, mis(0.08), {"a": mis(0.08)})
+    v = selection.decide({"a": 1e-5}, 0.1, mis(0.08), {"a": mis(0.08)}.get)
     assert (v.cause, v.explained) == ("unexplained", False)
     # a pattern shared by the experiments is structured whatever the floor says...
-    v = selection.decide({"a": 1e-5}, 0.1, mis(0.05, p=1e-4), {"a": mis(0.05)})
+    v = selection.decide({"a": 1e-5}, 0.1, mis(0.05, p=1e-4), {"a": mis(0.05)}.get)
     assert v.cause == "unexplained"
     # ...unless it is too small a share of the misfit to matter
     assert not mis(0.05, p=1e-4, share=0.2).structured

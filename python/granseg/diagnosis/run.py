@@ -40,8 +40,7 @@ class Diagnosis:
     :class:`~granseg.fitting.Fit` and ``fits`` the candidates'; ``held_out``
     and ``held_out_layers`` the leave-one-out RMSDs and maps by model name;
     ``gains`` the held-out gain [-] of each candidate; ``floor`` and ``noise``
-    the noise floor [-]; ``thresholds`` the decision thresholds this call used;
-    ``misfits`` each candidate's misfit tests (the baseline's is in ``verdict``).
+    the noise floor [-]; ``thresholds`` the decision thresholds this call used.
     """
 
     maps: list[Map]
@@ -57,7 +56,6 @@ class Diagnosis:
     evidence: Evidence
     verdict: selection.Verdict
     thresholds: dict[str, float]
-    misfits: dict[str, selection.Misfit] = field(default_factory=dict)
     timing: dict[str, float] = field(default_factory=dict)
     report_path: str | None = None
 
@@ -172,20 +170,22 @@ def diagnose(
         held[name], held_layers[name], _ = loo_predict(data, f)
     gains = {n: selection.held_out_gain(held["baseline"], held[n]) for n in fits}
     counted = all(e.counted for e in noise)
-    misfits = {n: selection.misfit(f.rmsd_mean, floor, counted,
-                                   selection.coherence(maps, data.exps, f.layers, selection.model_jacobians(data, f)),
-                                   excess_threshold=excess_threshold, coherence_alpha=coherence_alpha,
-                                   coherence_share=coherence_share)
-               for n, f in {"baseline": base, **fits}.items()}
-    verdict = selection.decide(gains, float(np.mean(held["baseline"])), misfits.pop("baseline"), misfits,
-                               gain_threshold=gain_threshold)
+
+    def misfit_of(f: Fit) -> selection.Misfit:
+        coh = selection.coherence(maps, data.exps, f.layers, selection.model_jacobians(data, f))
+        return selection.misfit(f.rmsd_mean, floor, counted, coh, excess_threshold=excess_threshold,
+                                coherence_alpha=coherence_alpha, coherence_share=coherence_share)
+
+    # only the baseline's and the named cause's misfit matter: test those, not every candidate
+    verdict = selection.decide(gains, float(np.mean(held["baseline"])), misfit_of(base),
+                               lambda name: misfit_of(fits[name]), gain_threshold=gain_threshold)
     timing["total"] = time.perf_counter() - t_start
     log(f"verdict: {verdict.cause} ({verdict.reason}); {data.n_runs} model runs in "
         f"{data.n_sweeps} sweeps, {timing['total']:.1f} s")
     diag = Diagnosis(maps, data, calibration, base, fits, held, held_layers, gains, floor, noise, ev, verdict,
                      {"gain": float(gain_threshold), "excess": float(excess_threshold),
                       "coherence_alpha": float(coherence_alpha), "coherence_share": float(coherence_share)},
-                     misfits, timing)
+                     timing)
     _write_outputs(diag, json, report, force, log)
     return diag
 

@@ -47,13 +47,12 @@ BENCHMARKS.md).
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 
-from granseg.fitting import ExpInfo
+from granseg.fitting import Data, ExpInfo, Fit
 from granseg.maps import Map
 
 __all__ = ["COHERENCE_ALPHA", "COHERENCE_SHARE", "Coherence", "EXCESS_THRESHOLD", "GAIN_THRESHOLD", "Misfit", "Verdict", "coherence", "decide",
@@ -185,7 +184,7 @@ def coherence(maps: Sequence[Map], exps: Sequence[ExpInfo], layers: Sequence[np.
     return Coherence(p, share)
 
 
-def model_jacobians(data: Any, f: Any) -> list[np.ndarray]:
+def model_jacobians(data: Data, f: Fit) -> list[np.ndarray]:
     """The model maps' derivatives (n_t, n_layers, q) by a fit's parameters, from its
     stored weighted residual Jacobian (:class:`granseg.fitting.Fit`)."""
     out = []
@@ -212,8 +211,9 @@ def misfit(rmsd_mean: float, floor: float, counted: bool, coh: Coherence, *,
 
 
 def decide(held_out_gain: dict[str, float], baseline_held_out_mean: float, baseline: Misfit,
-           candidates: dict[str, Misfit], *, gain_threshold: float = GAIN_THRESHOLD) -> Verdict:
-    """Name the cause from the candidates' held-out gains [-] and the misfit tests."""
+           candidate_misfit: Callable[[str], Misfit], *, gain_threshold: float = GAIN_THRESHOLD) -> Verdict:
+    """Name the cause from the candidates' held-out gains [-] and the misfit tests
+    (``candidate_misfit(name)`` is asked for the best candidate only, when it passes)."""
     if not held_out_gain:
         raise ValueError("decide: no candidate was fitted")
     order = sorted(held_out_gain, key=held_out_gain.get, reverse=True)
@@ -222,7 +222,7 @@ def decide(held_out_gain: dict[str, float], baseline_held_out_mean: float, basel
     relative = held_out_gain[best] / max(baseline_held_out_mean, 1e-9)
     margin = held_out_gain[best] - (held_out_gain[runner] if runner else 0.0)
     if relative > gain_threshold:
-        ext = candidates[best]
+        ext = candidate_misfit(best)
         reason = (f"{best} lowers the held-out RMSD by {held_out_gain[best]:.4f} ({100 * relative:.1f} % "
                   f"> {100 * gain_threshold:.1f} %); left after it: {ext.why}")
         return Verdict(best, not ext.structured, best, relative, baseline, ext, runner, margin, reason)
