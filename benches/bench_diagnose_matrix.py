@@ -1,19 +1,24 @@
 """Confusion matrix and false-alarm rate of `granseg diagnose` on virtual campaigns.
 
-For every catalogue cause (plus the null campaign and ``misclassification``, a
+For every catalogue cause (plus the null campaign, ``misclassification``, a
 confusion of the two kinds that the diagnosis must measure and not take for
-physics) campaigns are generated with seeded random
+physics, the open world's hidden law departures of granseg.synth.departures,
+which must be called ``new_law`` with the right law, and ``camera_sag``, which
+no law can produce and must be called ``unexplained``) campaigns are generated with seeded random
 strengths (granseg.synth.virtual.random_effect) and seeded random
 conditions (14 of the 18 pair x c0 combinations; the paper's 16 conditions for
 every third seed), diagnosed, and the named cause tabulated.
 
     python benches/bench_diagnose_matrix.py --seeds 3 --out benches/results/diagnose_confusion.json
     python benches/bench_diagnose_matrix.py --seeds 1 --noise all --out benches/results/diagnose_matrix_noise.json
+    python benches/bench_diagnose_matrix.py --seeds 3 --first-seed 2001 --truths open \
+        --noise all --out benches/results/diagnose_open_world.json
 
 ``--noise`` repeats the matrix under named measurement-noise processes
 (granseg.synth.virtual.NOISE_PROCESSES; ``all`` for every one).
 
-Seeds 2000 + i (disjoint from the null calibration's 1000 + i). Writes the
+Seeds ``--first-seed`` + i (default 2000, disjoint from the null calibration's).
+``--truths open`` stands for the departures and camera_sag. Writes the
 JSON results and a Markdown table (same stem, .md).
 """
 
@@ -26,9 +31,21 @@ from pathlib import Path
 
 from granseg.diagnosis import diagnose
 from granseg.fitting.causes import names
+from granseg.synth import departures
 from granseg.synth.virtual import NOISE_PROCESSES, campaign, random_conditions, random_effect
 
-TRUTHS = ["none", *names(), "misclassification"]
+#: hidden departures and the law the diagnosis should name for each
+DEPARTURES = {c.name: c.law for c in (departures.FluxAsymmetry, departures.MixingLayer, departures.MixingBurst,
+                                      departures.ShearGaussian)}
+OPEN = [*DEPARTURES, "camera_sag"]
+TRUTHS = ["none", *names(), "misclassification", *OPEN]
+
+
+def expected(truth: str) -> str:
+    """The verdict a right diagnosis gives (``new_law:<law>`` for a departure)."""
+    if truth in DEPARTURES:
+        return f"new_law:{DEPARTURES[truth]}"
+    return {"misclassification": "none", "camera_sag": "unexplained"}.get(truth, truth)
 
 
 def one(truth: str, seed: int, noise: str = "persistent") -> dict:
@@ -39,8 +56,15 @@ def one(truth: str, seed: int, noise: str = "persistent") -> dict:
     d = diagnose(maps, progress=False)
     r = d.result
     dec = r["decision"]
+    dep = r["departure"]
+    called = f"new_law:{dep['law']}" if dep else r["cause"]
     return {"truth": truth, "seed": seed, "noise": noise, "strength": strength, "effect_params": extra,
-            "conditions": "table1" if conds is None else "random14", "called": r["cause"],
+            "conditions": "table1" if conds is None else "random14", "called": called,
+            "expected": expected(truth), "right": called == expected(truth),
+            "departure": dep and {"correction": dep["correction"], "summary": dep["summary"],
+                                  "gain_relative": dep["gain_relative"],
+                                  "literature_form": dep["literature_form"] and dep["literature_form"]["name"]},
+            "open_world": r["open_world"] and {x["name"]: x["gain_held_out"] for x in r["open_world"]["laws"]},
             "explained": r["explained"], "gain_held_out": r["gain"]["rmsd_held_out"],
             "gain_relative": dec["gain_relative"], "best_candidate": dec["best_candidate"],
             "baseline_over_floor": dec["baseline_rmsd_over_floor"],
@@ -52,7 +76,8 @@ def one(truth: str, seed: int, noise: str = "persistent") -> dict:
 
 
 def table(rows: list[dict]) -> str:
-    called = ["none", *names(), "unexplained"]
+    laws = sorted({v for v in DEPARTURES.values()} | {r["called"][8:] for r in rows if r["called"].startswith("new_law:")})
+    called = ["none", *names(), *[f"new_law:{x}" for x in laws], "unexplained"]
     head = "| truth \\ called | " + " | ".join(c.replace("_", " ") for c in called) + " | n |"
     lines = [head, "|" + "---|" * (len(called) + 2)]
     for t in TRUTHS:
@@ -66,16 +91,18 @@ def table(rows: list[dict]) -> str:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, default=3)
-    ap.add_argument("--truths", nargs="+", default=TRUTHS, choices=TRUTHS)
+    ap.add_argument("--truths", nargs="+", default=TRUTHS, choices=[*TRUTHS, "open"])
+    ap.add_argument("--first-seed", type=int, default=2000)
     ap.add_argument("--noise", nargs="+", default=["persistent"], choices=["all", *NOISE_PROCESSES])
     ap.add_argument("--out", default="benches/results/diagnose_confusion.json")
     args = ap.parse_args()
     processes = list(NOISE_PROCESSES) if "all" in args.noise else args.noise
+    truths = [t for x in args.truths for t in (OPEN if x == "open" else [x])]
     rows = []
     for i in range(args.seeds):
         for noise in processes:
-            for t in args.truths:
-                rows.append(one(t, 2000 + i, noise))
+            for t in truths:
+                rows.append(one(t, args.first_seed + i, noise))
                 print(json.dumps(rows[-1]), flush=True)
     null = [r for r in rows if r["truth"] == "none"]
     hidden = [r for r in rows if r["truth"] in names()]
@@ -88,6 +115,14 @@ def main() -> None:
         "hidden_positive_gain": sum(r["gain_held_out"] > 0 for r in hidden) / max(len(hidden), 1),
         "confusion_measured_and_called_none": sum(r["called"] == "none" and bool(r["confusion_applied"])
                                                   for r in confused) / max(len(confused), 1),
+        "departures_right_law": sum(r["right"] for r in rows if r["truth"] in DEPARTURES)
+                                / max(sum(r["truth"] in DEPARTURES for r in rows), 1),
+        "departures_positive_gain": sum(r["gain_held_out"] > 0 for r in rows if r["truth"] in DEPARTURES)
+                                    / max(sum(r["truth"] in DEPARTURES for r in rows), 1),
+        "camera_sag_unexplained": sum(r["right"] for r in rows if r["truth"] == "camera_sag")
+                                  / max(sum(r["truth"] == "camera_sag" for r in rows), 1),
+        "accuracy_all": sum(r["right"] for r in rows) / max(len(rows), 1),
+        "seconds_max": max((r["seconds"] for r in rows), default=0.0),
         "seconds_mean": sum(r["seconds"] for r in rows) / max(len(rows), 1),
         "runs": rows,
     }

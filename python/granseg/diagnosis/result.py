@@ -1,11 +1,15 @@
 """The diagnosis' JSON contract, as TypedDicts, derived from a :class:`~granseg.diagnosis.run.Diagnosis`.
 
-The contract (issue 5): ``cause`` (a catalogue name, ``none`` or
-``unexplained``), ``explained``, a one-paragraph ``summary``, the
+The contract (issues 5 and 11): ``cause`` (a catalogue name, ``none``,
+``new_law`` or ``unexplained``), ``explained``, a one-paragraph ``summary``, the
 ``noise_floor`` [-], the ``baseline`` and the ``extended`` model (parameters,
 standard errors, RMSD in sample and held out, per experiment [-]), the
 ``gain``, every ``candidate``, the ``decision`` with the thresholds the call
-used, the ``evidence`` and the run's ``settings``.
+used, the ``evidence`` and the run's ``settings``; the ``departure`` (the law
+that departs, its fitted shape with a 95 % band, a sentence, the held-out
+gain, a literature form where one fits; null unless ``cause`` is
+``new_law``) and the ``open_world`` (every law correction tried, or null when
+the catalogue sufficed).
 """
 
 from __future__ import annotations
@@ -15,7 +19,7 @@ from typing import TYPE_CHECKING, Any, TypedDict
 import numpy as np
 
 from granseg.diagnosis.selection import Misfit
-from granseg.fitting import REGISTRY, Fit
+from granseg.fitting import REGISTRY, Fit, laws
 
 if TYPE_CHECKING:
     from granseg.diagnosis.run import Diagnosis
@@ -82,6 +86,29 @@ class DecisionJSON(TypedDict):
     coherence_share: float
 
 
+class ShapeJSON(TypedDict, total=False):
+    variable: str
+    x: list[float]
+    factor: list[float]
+    lo: list[float]
+    hi: list[float]
+    log_sd: list[float]
+    band: str
+    time_scale_s: float
+
+
+class DepartureJSON(TypedDict):
+    law: str
+    correction: str
+    description: str
+    summary: str
+    shape: ShapeJSON
+    params: dict[str, float]
+    gain_held_out: float
+    gain_relative: float
+    literature_form: dict[str, Any] | None
+
+
 class DiagnosisJSON(TypedDict, total=False):
     cause: str
     explained: bool
@@ -94,6 +121,8 @@ class DiagnosisJSON(TypedDict, total=False):
     candidates: list[CandidateJSON]
     decision: DecisionJSON
     evidence: dict[str, Any]
+    departure: DepartureJSON | None
+    open_world: dict[str, Any] | None
     experiments: list[dict[str, Any]]
     settings: dict[str, Any]
     report: str
@@ -117,7 +146,7 @@ def _by_name(names: list[str], values: Any) -> dict[str, float]:
 
 def _model(d: Diagnosis, name: str, f: Fit) -> ModelJSON:
     names = d.data.names
-    held = d.held_out[name]
+    held = d.open_world.held_out[name] if name not in d.held_out and d.open_world else d.held_out[name]
     return ModelJSON(model=f.effect.name, params=f.values(), stderr=f.errors(),
                      law=f.effect.law(f.values(), f.errors()),
                      rmsd=_by_name(names, f.rmsd), rmsd_mean=f.rmsd_mean,
@@ -142,16 +171,49 @@ def _gain(base: ModelJSON, ext: ModelJSON | None, held_gain: float) -> GainJSON:
                                              for n in ext["rmsd"]})
 
 
-def summary(cause: str, explained: bool, ext: ModelJSON | None, base: BaselineJSON, floor: float, n: int) -> str:
+def departure(d: Diagnosis) -> DepartureJSON | None:
+    """The departing law of a ``new_law`` verdict (None otherwise)."""
+    ow, name = d.open_world, d.verdict.law
+    if d.verdict.cause != "new_law" or ow is None or name is None:
+        return None
+    f = ow.fits[name]
+    law: laws.LawCorrection = f.effect  # type: ignore[assignment]
+    sh = ow.shapes.setdefault(name, laws.shape(f))
+    return DepartureJSON(law=law.law_name, correction=name, description=law.description,
+                         summary=laws.sentence(f, sh), shape=sh, params=f.values(),  # type: ignore[typeddict-item]
+                         gain_held_out=ow.gains[name], gain_relative=d.verdict.gain_relative,
+                         literature_form=laws.literature_form(f, sh))
+
+
+def _open_world(d: Diagnosis) -> dict[str, Any] | None:
+    ow = d.open_world
+    if ow is None:
+        return None
+    return {"time_scale_s": ow.time_scale, "seconds": ow.seconds,
+            "laws": [ow.record(n) for n in ow.fits],
+            "note": "all corrections fitted; the best in sample scored held out by refitting without each experiment"}
+
+
+def summary(cause: str, explained: bool, ext: ModelJSON | None, base: BaselineJSON, floor: float, n: int,
+            dep: DepartureJSON | None = None, partial: str | None = None, laws_tried: bool = False) -> str:
     """The verdict in one paragraph of plain words."""
+    if cause == "new_law" and dep is not None and ext is not None:
+        return (f"No catalogued cause explains the misfit; a correction of the {dep['law'].replace('_', ' ')} "
+                f"law does. {dep['summary']} It lowers the mean held-out RMSD from "
+                f"{base['rmsd_held_out_mean']:.3f} to {ext['rmsd_held_out_mean']:.3f} over {n} experiments "
+                f"(noise floor {floor:.3f}) and leaves no structured misfit.")
     if cause == "none":
         return (f"The baseline model explains all {n} experiments within the measurement noise "
                 f"(mean RMSD {base['rmsd_mean']:.3f} against a noise floor of {floor:.3f}); "
                 f"no candidate cause improves the held-out predictions.")
     if cause == "unexplained" or ext is None:
+        helped = (f"{partial.replace('_', ' ')} improves the held-out predictions but leaves a structured "
+                  f"misfit" if partial else "none of the catalogued causes improves the held-out predictions "
+                  "enough to name it")
+        laws_txt = (" Correcting each law of the model in turn does not explain it either." if laws_tried
+                    else "")
         return (f"The baseline misses the data beyond the noise (mean RMSD {base['rmsd_mean']:.3f}, "
-                f"noise floor {floor:.3f}), but none of the catalogued causes improves the held-out "
-                f"predictions enough to name it; the misfit has a cause outside the catalogue.")
+                f"noise floor {floor:.3f}); {helped}.{laws_txt} The misfit has a cause granseg cannot name.")
     desc = REGISTRY[cause].description.split(":")[0].split(".")[0]
     tail = ("which brings the misfit down to the noise floor" if explained else
             "but a misfit beyond the noise remains")
@@ -166,13 +228,20 @@ def build_result(d: Diagnosis) -> DiagnosisJSON:
     full = _model(d, "baseline", d.baseline)
     base = BaselineJSON(**{k: full[k] for k in BaselineJSON.__annotations__})  # type: ignore[typeddict-item]
     ext = _model(d, v.cause, d.fits[v.cause]) if v.cause in d.fits else None
+    held_gain = d.gains.get(v.cause, 0.0)
+    if v.cause == "new_law" and d.open_world is not None and v.law is not None:
+        ext = _model(d, v.law, d.open_world.fits[v.law])
+        held_gain = d.open_world.gains[v.law]
+    dep = departure(d)
     out = DiagnosisJSON(
         cause=v.cause, explained=v.explained,
-        summary=summary(v.cause, v.explained, ext, base, d.floor, d.data.n),
+        summary=summary(v.cause, v.explained, ext, base, d.floor, d.data.n, dep,
+                        partial=v.best if v.cause == "unexplained" and v.extended is not None else None,
+                        laws_tried=d.open_world is not None),
         noise_floor=d.floor,
         noise={"per_experiment": {e.name: e.floor for e in d.noise}, "method": d.noise[0].method,
                "confusion": d.data.confusion_record},
-        baseline=base, extended=ext, gain=_gain(full, ext, d.gains.get(v.cause, 0.0)),
+        baseline=base, extended=ext, gain=_gain(full, ext, held_gain),
         candidates=[_candidate(d, n, f) for n, f in d.fits.items()],
         decision=DecisionJSON(reason=v.reason, best_candidate=v.best, runner_up=v.runner_up,
                               gain_relative=v.gain_relative,
@@ -184,6 +253,8 @@ def build_result(d: Diagnosis) -> DiagnosisJSON:
                               coherence_alpha=d.thresholds["coherence_alpha"],
                               coherence_share=d.thresholds["coherence_share"]),
         evidence=dict(d.evidence),
+        departure=dep,
+        open_world=_open_world(d),
         experiments=[{"name": e.name, "heavy": e.heavy, "light": e.light, "c0": e.c0, "M_g": e.M_g,
                       "M_w": e.M_w, "M_tilde": e.M_tilde, "delta_R": e.delta_R} for e in d.data.exps],
         settings={**d.data.solver_settings(), "errors": {"baseline": d.baseline.error_method,

@@ -24,6 +24,7 @@ from granseg.calibration import Calibration, as_maps, calibrate
 from granseg.diagnosis import selection
 from granseg.diagnosis.evidence import Evidence, gather
 from granseg.diagnosis.noise import NoiseEstimate, campaign_floor
+from granseg.diagnosis.open_world import OpenWorld, explore
 from granseg.diagnosis.result import DiagnosisJSON, build_result
 from granseg.fitting import DEFAULT_N_CELLS, Data, Fit, fit, loo_predict
 from granseg.fitting import causes as catalogue
@@ -58,10 +59,12 @@ class Diagnosis:
     thresholds: dict[str, float]
     timing: dict[str, float] = field(default_factory=dict)
     report_path: str | None = None
+    #: the law corrections tried when the catalogue left a structured misfit (None: not needed or disabled)
+    open_world: OpenWorld | None = None
 
     @property
     def cause(self) -> str:
-        """The named cause: a catalogue name, ``none`` or ``unexplained``."""
+        """The named cause: a catalogue name, ``none``, ``new_law`` or ``unexplained``."""
         return self.verdict.cause
 
     @property
@@ -119,6 +122,7 @@ def diagnose(
     coherence_share: float = selection.COHERENCE_SHARE,
     progress: bool = True,
     accept_flagged: bool = False,
+    open_world: bool = True,
 ) -> Diagnosis:
     """Find what the baseline model gets wrong on a campaign, name the cause, measure the gain.
 
@@ -143,6 +147,9 @@ def diagnose(
     progress : log each step to stderr.
     accept_flagged : use maps that failed their frame-analysis quality checks
         (refused by default with :class:`granseg.errors.FlaggedMapError`).
+    open_world : when the catalogue leaves a structured misfit, fit a smooth
+        correction of each law of the model (:mod:`granseg.fitting.laws`) and
+        name the one that explains it (``new_law``, JSON ``departure``).
     """
     t_start = time.perf_counter()
     if json is not None:
@@ -179,13 +186,21 @@ def diagnose(
     # only the baseline's and the named cause's misfit matter: test those, not every candidate
     verdict = selection.decide(gains, float(np.mean(held["baseline"])), misfit_of(base),
                                lambda name: misfit_of(fits[name]), gain_threshold=gain_threshold)
+    ow = None
+    if open_world and selection.needs_open_world(verdict):
+        log(f"catalogue verdict: {verdict.cause} (explained: {verdict.explained}); trying the law corrections")
+        ow = explore(data, base, held["baseline"], log=log)
+        verdict = selection.extend(verdict, ow.gains, float(np.mean(held["baseline"])),
+                                   lambda name: misfit_of(ow.fits[name]), gain_threshold=gain_threshold)
+        timing["open_world"] = ow.seconds
+    verdict = selection.settle(verdict)
     timing["total"] = time.perf_counter() - t_start
     log(f"verdict: {verdict.cause} ({verdict.reason}); {data.n_runs} model runs in "
         f"{data.n_sweeps} sweeps, {timing['total']:.1f} s")
     diag = Diagnosis(maps, data, calibration, base, fits, held, held_layers, gains, floor, noise, ev, verdict,
                      {"gain": float(gain_threshold), "excess": float(excess_threshold),
                       "coherence_alpha": float(coherence_alpha), "coherence_share": float(coherence_share)},
-                     timing)
+                     timing, open_world=ow)
     _write_outputs(diag, json, report, force, log)
     return diag
 

@@ -35,9 +35,17 @@ number alone:
      this test is not used (the verdict says so).
 
 The verdict: the best candidate by held-out gain is the cause when it passes
-(1), ``explained`` when its own misfit is not structured by (2); with no
-candidate passing, ``none`` when the baseline's misfit is not structured,
-else ``unexplained``.
+(1) and its own misfit is not structured by (2); with no candidate passing,
+``none`` when the baseline's misfit is not structured, else ``unexplained``.
+A candidate that passes (1) but leaves a structured misfit helps without
+explaining: after the open world below, such a verdict is ``unexplained``
+(:func:`settle`), the partial cause named in ``best``.
+
+When the catalogue leaves a structured misfit (``unexplained``, or a cause
+that does not explain it), :func:`extend` asks the law corrections of
+:mod:`granseg.fitting.laws` (fitted in :mod:`granseg.diagnosis.open_world`):
+the best becomes the cause ``new_law`` when it passes (1) by a clear margin
+over the catalogue's best and leaves no structured misfit by (2).
 
 The thresholds are calibrated on null campaigns under every named noise
 process of :data:`granseg.synth.virtual.NOISE_PROCESSES`
@@ -48,15 +56,15 @@ BENCHMARKS.md).
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from granseg.fitting import Data, ExpInfo, Fit
 from granseg.maps import Map
 
-__all__ = ["COHERENCE_ALPHA", "COHERENCE_SHARE", "Coherence", "EXCESS_THRESHOLD", "GAIN_THRESHOLD", "Misfit", "Verdict", "coherence", "decide",
-           "misfit", "model_jacobians"]
+__all__ = ["COHERENCE_ALPHA", "COHERENCE_SHARE", "EXCESS_THRESHOLD", "GAIN_THRESHOLD", "Coherence", "Misfit",
+           "Verdict", "coherence", "decide", "extend", "misfit", "model_jacobians", "needs_open_world", "settle"]
 
 #: Minimum held-out gain of the best candidate, relative to the baseline's held-out RMSD.
 GAIN_THRESHOLD = 0.02
@@ -110,6 +118,8 @@ class Verdict:
     runner_up: str | None
     margin: float
     reason: str
+    #: the law correction named when ``cause`` is ``new_law`` (:mod:`granseg.fitting.laws`)
+    law: str | None = None
 
 
 def _binned(m: Map, values: np.ndarray, ok: np.ndarray) -> np.ndarray:
@@ -233,6 +243,50 @@ def decide(held_out_gain: dict[str, float], baseline_held_out_mean: float, basel
                        f"baseline misfit not structured ({baseline.why}); {tail}")
     return Verdict("unexplained", False, best, relative, baseline, None, runner, margin,
                    f"baseline misfit structured ({baseline.why}); {tail}")
+
+
+def needs_open_world(v: Verdict) -> bool:
+    """True when the catalogue leaves a structured misfit (``unexplained``, or a cause not explaining it)."""
+    return v.cause != "none" and not v.explained
+
+
+def extend(v: Verdict, law_gains: dict[str, float], baseline_held_out_mean: float,
+           law_misfit: Callable[[str], Misfit], *, gain_threshold: float = GAIN_THRESHOLD) -> Verdict:
+    """The verdict after the open world (:mod:`granseg.diagnosis.open_world`).
+
+    The best law correction becomes the cause (``new_law``) when its relative
+    held-out gain passes ``gain_threshold``, beats the catalogue's best by
+    more than ``gain_threshold`` (a catalogue cause, with fewer parameters,
+    wins when it predicts about as well) and leaves no structured misfit.
+    Otherwise the catalogue's verdict stands, with the reason extended.
+    """
+    if not law_gains:
+        return v
+    best = max(law_gains, key=law_gains.get)
+    rel = law_gains[best] / max(baseline_held_out_mean, 1e-9)
+    catalogue = v.gain_relative if v.best is not None else 0.0
+    head = f"open world: best law correction {best} gains {100 * rel:.1f} % held out"
+    if rel <= gain_threshold:
+        return replace(v, reason=f"{v.reason}; {head} (needs > {100 * gain_threshold:.1f} %)")
+    if rel <= catalogue + gain_threshold:
+        return replace(v, reason=f"{v.reason}; {head}, not clearly more than {v.best} "
+                                 f"({100 * catalogue:.1f} %, fewer parameters)")
+    m = law_misfit(best)
+    if m.structured:
+        return replace(v, reason=f"{v.reason}; {head} but leaves a structured misfit ({m.why})")
+    margin = law_gains[best] - catalogue * baseline_held_out_mean
+    return Verdict("new_law", True, v.best, rel, v.baseline, m, v.best, margin,
+                   f"{v.reason}; {head} (> {100 * gain_threshold:.1f} % and more than the catalogue's "
+                   f"{100 * catalogue:.1f} %) and leaves no structured misfit ({m.why})", law=best)
+
+
+def settle(v: Verdict) -> Verdict:
+    """The final verdict: a catalogue cause that gains held out but leaves a structured misfit
+    does not explain it, so the cause is ``unexplained`` (the partial cause stays in ``best``)."""
+    if v.cause in ("none", "unexplained", "new_law") or v.explained:
+        return v
+    return replace(v, cause="unexplained",
+                   reason=f"{v.reason}; {v.best} helps but does not explain the misfit: unexplained")
 
 
 def held_out_gain(baseline_ho: np.ndarray, candidate_ho: np.ndarray) -> float:

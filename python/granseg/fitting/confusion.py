@@ -11,8 +11,9 @@ a frame analysis with overlapping colour classes does).
 
 :func:`measure` pools those entries per material pair (one camera and one
 pair of looks: one confusion) over the first :data:`EARLY_WINDOWS` smoothing
-windows of every run, where physical mixing has not yet reached the layers the
-model calls pure; later times are not used, so an effect that mixes the bed
+windows of every run, and no later than :data:`EARLY_SECONDS` after its first
+frame (sparse footage has windows minutes long), where physical mixing has not
+yet reached the layers the model calls pure; later times are not used, so an effect that mixes the bed
 more than the model (extra diffusion, a wider band) cannot pass for
 confusion. The fitting layer applies the measured f in the observation step
 (:func:`granseg.fitting.observe.model_maps`) when it is resolved
@@ -27,12 +28,15 @@ import numpy as np
 
 from granseg.maps import Map
 
-__all__ = ["EARLY_WINDOWS", "MIN_SHARE", "MIN_SIGMAS", "PURE", "Confusion", "measure"]
+__all__ = ["EARLY_SECONDS", "EARLY_WINDOWS", "MIN_SHARE", "MIN_SIGMAS", "PURE", "Confusion", "measure"]
 
 #: A model layer mean this close to 0 or 1 counts as pure [-].
 PURE = 2e-3
-#: How many smoothing windows (at least 3 frames each) from the start are used.
+#: How many smoothing windows (at least 3 frames each) from the start are used...
 EARLY_WINDOWS = 3
+#: ...within this time [s] of the first frame: a model error (a wider band, extra mixing)
+#: can mix a layer the model still calls pure within minutes, and its grains are not confused.
+EARLY_SECONDS = 60.0
 #: The smallest share worth correcting [-], and the resolution it needs [standard errors].
 MIN_SHARE = 0.005
 MIN_SIGMAS = 3.0
@@ -57,6 +61,7 @@ def _early_pure(m: Map, model: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     frames = EARLY_WINDOWS * max(m.smoothing_frames, 3)
     early = np.zeros(m.n_times, dtype=bool)
     early[:frames] = True
+    early &= m.t - m.t[0] <= EARLY_SECONDS
     return (model < PURE) & early[:, None], (model > 1.0 - PURE) & early[:, None]
 
 

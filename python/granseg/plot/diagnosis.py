@@ -1,7 +1,8 @@
 """The evidence figures of a diagnosis (:class:`granseg.diagnosis.Diagnosis`).
 
 Each function takes the diagnosis and returns a :class:`matplotlib.figure.Figure`
-in granseg's style; :data:`FIGURES` maps each figure's name to its function,
+in granseg's style (or None when it does not apply: ``departure`` only when
+the law corrections were tried); :data:`FIGURES` maps each figure's name to its function,
 in the order the diagnosis report shows them.
 
 Example::
@@ -27,7 +28,7 @@ from granseg.plot.base import C_LABEL, H_LABEL, STYLE, T_LABEL, map_edges, new_f
 if TYPE_CHECKING:
     from granseg.diagnosis.run import Diagnosis
 
-__all__ = ["FIGURES", "residual_maps", "covariates", "candidates", "gain", "before_after"]
+__all__ = ["FIGURES", "before_after", "candidates", "covariates", "departure", "gain", "residual_maps"]
 
 PAIR_COLOURS: list[str] = STYLE["axes.prop_cycle"].by_key()["color"]
 
@@ -202,14 +203,24 @@ def _showcase(d: Diagnosis) -> int:
     return int(np.argmax(d.baseline.rmsd))
 
 
+def _extended_fit(d: Diagnosis) -> Any:
+    """The named cause's fit: a catalogue cause or the departing law's correction (None for none)."""
+    if d.cause in d.fits:
+        return d.fits[d.cause]
+    if d.cause == "new_law" and d.open_world is not None and d.verdict.law is not None:
+        return d.open_world.fits[d.verdict.law]
+    return None
+
+
 def before_after(d: Diagnosis) -> Figure:
     """Measured map, baseline model and extended model for the experiment that gains most."""
     i = _showcase(d)
     m = d.maps[i]
     panels = [("measured", m.c), (f"baseline, RMSD {d.baseline.rmsd[i]:.3f}", d.baseline.layers[i])]
-    if d.cause in d.fits:
-        f = d.fits[d.cause]
-        panels.append((f"{d.cause.replace('_', ' ')}, RMSD {f.rmsd[i]:.3f}", f.layers[i]))
+    f = _extended_fit(d)
+    if f is not None:
+        label = f.effect.name.removeprefix("law_").replace("_", " ")
+        panels.append((f"{label}, RMSD {f.rmsd[i]:.3f}", f.layers[i]))
     te, ze = map_edges(m, _bed_height(d))
     with style():
         fig = new_figure(7.2, 2.3)
@@ -225,11 +236,81 @@ def before_after(d: Diagnosis) -> Figure:
     return fig
 
 
+_VARIABLE_LABELS = {"c": "heavy share $c$ [-]", "z/H": "height above the driven plate $z/H$ [-]",
+                    "t/T": "time $t/T$ [-]"}
+
+
+def _departure_law(d: Diagnosis) -> str | None:
+    """The law correction to show: the named one, else the best held out (None: open world not tried)."""
+    ow = d.open_world
+    if ow is None or not ow.fits:
+        return None
+    if d.verdict.law is not None:
+        return d.verdict.law
+    return max(ow.gains, key=ow.gains.get) if ow.gains else min(ow.fits, key=lambda n: ow.fits[n].rmsd_mean)
+
+
+def departure(d: Diagnosis) -> Figure | None:
+    """The departing law's fitted factor with its 95 % band, and every law correction's gain.
+
+    None when the open world was not tried (the catalogue explained the misfit).
+    """
+    name = _departure_law(d)
+    if name is None or d.open_world is None:
+        return None
+    from granseg.fitting import laws
+
+    ow = d.open_world
+    f = ow.fits[name]
+    law: laws.LawCorrection = f.effect  # type: ignore[assignment]
+    sh = ow.shapes.setdefault(name, laws.shape(f))
+    lit = laws.literature_form(f, sh)
+    base = float(np.mean(d.held_out["baseline"]))
+    named = d.verdict.law == name
+    with style():
+        fig = new_figure(7.2, 2.8)
+        ax, bx = fig.subplots(1, 2, gridspec_kw={"width_ratios": [1.25, 1.0]})
+        x = np.asarray(sh["x"])
+        ax.fill_between(x, sh["lo"], sh["hi"], color="#56B4E9", alpha=0.35, lw=0, label="95 % band")
+        ax.plot(x, sh["factor"], color="#0072B2", lw=1.8, label="fitted correction")
+        if lit is not None:
+            ax.plot(x, lit["factor"], color="#D55E00", ls="--", lw=1.2, label=lit["name"])
+        ax.axhline(1.0, color="k", lw=0.6)
+        ax.set_yscale("log")
+        span = [*sh["lo"], *sh["hi"], 1.0]
+        if max(span) / min(span) < 200:
+            _log_ticks(ax.yaxis, span)
+        ax.set_xlabel(_VARIABLE_LABELS.get(law.variable, law.variable))
+        ax.set_ylabel("factor on the law [-]" if law.law_name != "observation" else "wall / bulk at $c$ = 1/2 [-]")
+        verdict = "the law that departs" if named else "best correction tried, not named"
+        ax.set_title(f"{law.quantity[0].upper()}{law.quantity[1:]}: {verdict}", loc="left", fontsize=8.5)
+        ax.legend(fontsize=7, loc="best")
+        if law.variable == "t/T":
+            ax.text(0.99, 0.02, f"T = {ow.time_scale / 60:.0f} min", transform=ax.transAxes, ha="right",
+                    va="bottom", fontsize=7)
+        names = sorted(ow.fits, key=lambda n: ow.fits[n].rmsd_mean, reverse=True)
+        y = np.arange(len(names))
+        insample = [100 * (d.baseline.rmsd_mean - ow.fits[n].rmsd_mean) / d.baseline.rmsd_mean for n in names]
+        held = [100 * ow.gains[n] / base if n in ow.gains else np.nan for n in names]
+        bx.barh(y + 0.2, insample, 0.4, color="#999999", label="in sample")
+        bx.barh(y - 0.2, held, 0.4, color=["#009E73" if n == d.verdict.law else "#56B4E9" for n in names],
+                label="held out (refitted)")
+        thr = 100 * d.thresholds["gain"]
+        bx.axvline(thr, color="#D55E00", ls="--", lw=1, label=f"threshold ({thr:.0f} %)")
+        bx.axvline(0, color="k", lw=0.6)
+        bx.set_yticks(y, [n.removeprefix("law_").replace("_", " ") for n in names], fontsize=7)
+        bx.set_xlabel("RMSD gain over the baseline [%]")
+        bx.set_title("Each law corrected in turn", loc="left", fontsize=8.5)
+        bx.legend(fontsize=6.5, loc="lower right")
+    return fig
+
+
 #: The diagnosis figures by name, in the order the report shows them.
-FIGURES: dict[str, Callable[[Diagnosis], Figure]] = {
+FIGURES: dict[str, Callable[[Diagnosis], Figure | None]] = {
     "residual_maps": residual_maps,
     "covariates": covariates,
     "candidates": candidates,
     "gain": gain,
     "before_after": before_after,
+    "departure": departure,
 }

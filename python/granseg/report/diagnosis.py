@@ -44,17 +44,50 @@ CAPTIONS = {
                   "not see (leave-one-out). Only a gain beyond the threshold names a cause.",
     "gain": "RMSD per experiment before and after the extension, with the noise floor each map allows.",
     "before_after": "The experiment that gains most: measurement, baseline and extended model.",
+    "departure": "Left: the fitted correction of the law that departs, as a factor on the baseline's law, "
+                 "with its 95 % band (cluster-robust over experiments) and, dashed, a known form where one "
+                 "lies inside the band. Right: every law of the model corrected in turn; the best in sample "
+                 "are refitted without each experiment and scored on it.",
 }
 
 
 def write_report(d: Diagnosis, out: str | os.PathLike, *, force: bool = False) -> Path:
     """Draw the figures and write ``out/index.html`` and ``out/diagnosis.json``; return the page."""
     out = prepare_output_dir(out, OUTPUTS, force, folders=["figures"])
-    figs = save_figures([(name, CAPTIONS[name], draw(d)) for name, draw in FIGURES.items()], out, force=force)
+    drawn = [(name, CAPTIONS[name], draw(d)) for name, draw in FIGURES.items()]
+    figs = save_figures([(n, c, f) for n, c, f in drawn if f is not None], out, force=force)
     result = d.result
     save_json(out / "diagnosis.json", result, force=force)
     text = render(result, figs, out)
     return atomic_write(out / "index.html", lambda tmp: tmp.write_text(text, encoding="utf-8"), force=force)
+
+
+def _open_world_section(r: Mapping[str, Any]) -> str:
+    """The departure from the model's laws: what was tried, and the law that departs if one does."""
+    ow = r.get("open_world")
+    if not ow:
+        return ""
+    dep = r.get("departure")
+    parts = ["<h2>Beyond the catalogue: the model's laws, one at a time</h2>"]
+    if dep:
+        lit = dep.get("literature_form")
+        parts.append(f"<p class='verdict'><b>The {esc(dep['law'].replace('_', ' '))} law departs.</b> "
+                     f"{esc(dep['summary'])} Held-out gain {num(dep['gain_held_out'], '+.4f')} "
+                     f"({num(100 * dep['gain_relative'], '.1f')} % of the baseline's held-out RMSD).</p>")
+        if lit:
+            consts = ", ".join(f"{k} = {v:.3g}" for k, v in lit["constants"].items())
+            parts.append(f"<p>Close to a known form: {esc(lit['name'])}, {esc(lit['expression'])} with "
+                         f"{esc(consts)} ({esc(lit['reference'])}).</p>")
+    else:
+        parts.append("<p>No correction of a single law explains the misfit well enough to name it.</p>")
+    rows = [[esc(x["name"].removeprefix("law_").replace("_", " ")), esc(x["description"]), num(x["rmsd"], ".4f"),
+             num(x["rmsd_held_out"], ".4f") if x["rmsd_held_out"] is not None else "not scored",
+             num(x["gain_held_out"], "+.4f") if x["gain_held_out"] is not None else "&ndash;"]
+            for x in ow["laws"]]
+    hi = ["best" if dep and x["name"] == dep["correction"] else "" for x in ow["laws"]]
+    parts.append(table(["law corrected", "correction", "mean RMSD", "held-out RMSD", "held-out gain"], rows, hi,
+                       left=2))
+    return "".join(parts)
 
 
 def render(r: Mapping[str, Any], figs: Sequence[Mapping[str, str]], out: Path) -> str:
@@ -75,5 +108,6 @@ def render(r: Mapping[str, Any], figs: Sequence[Mapping[str, str]], out: Path) -
         "<h2>Candidates</h2><p>Every catalogued cause, scored by leave-one-experiment-out; "
         "the highlighted row is the named cause.</p>",
         table(["cause", "fitted extension", "mean RMSD", "held-out RMSD", "held-out gain"], rows, best, left=2),
+        _open_world_section(r),
         figures(figs, out, heading="Evidence"),
     ]))

@@ -103,6 +103,7 @@ from granseg.fitting import REGISTRY, Baseline, Effect, ExpInfo, causes, shifted
 from granseg.fitting.causes import ROUGHNESS
 from granseg.maps import Map, moving_average, save_map
 from granseg.model import MATERIALS, defaults, derived, simulate, velocity_profile
+from granseg.synth import departures  # noqa: F401  (registers the open-world test effects)
 
 DEFAULTS = defaults()
 
