@@ -63,6 +63,7 @@ def one(truth: str, seed: int, noise: str = "persistent") -> dict:
             "expected": expected(truth), "right": called == expected(truth),
             "departure": dep and {"correction": dep["correction"], "summary": dep["summary"],
                                   "gain_relative": dep["gain_relative"],
+                                  "close_rivals": [x["law"] for x in dep["close_rivals"]],
                                   "literature_form": dep["literature_form"] and dep["literature_form"]["name"]},
             "open_world": r["open_world"] and {x["name"]: x["gain_held_out"] for x in r["open_world"]["laws"]},
             "explained": r["explained"], "gain_held_out": r["gain"]["rmsd_held_out"],

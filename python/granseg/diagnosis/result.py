@@ -107,6 +107,7 @@ class DepartureJSON(TypedDict):
     gain_held_out: float
     gain_relative: float
     literature_form: dict[str, Any] | None
+    close_rivals: list[dict[str, Any]]
 
 
 class DiagnosisJSON(TypedDict, total=False):
@@ -179,10 +180,19 @@ def departure(d: Diagnosis) -> DepartureJSON | None:
     f = ow.fits[name]
     law: laws.LawCorrection = f.effect  # type: ignore[assignment]
     sh = ow.shapes.setdefault(name, laws.shape(f))
+    base = float(np.mean(d.held_out["baseline"]))
+    # another law predicting within the gain threshold of the named one: the data do not separate them
+    rivals = [{"correction": n, "law": ow.fits[n].effect.law_name, "gain_held_out": g,  # type: ignore[attr-defined]
+               "gain_relative": g / base}
+              for n, g in ow.gains.items() if n != name and ow.gains[name] - g <= d.thresholds["gain"] * base]
+    text = laws.sentence(f, sh)
+    if rivals:
+        text += (" A correction of " + " or ".join(r["law"].replace("_", " ") for r in rivals)
+                 + " predicts almost as well: these data do not tell them apart.")
     return DepartureJSON(law=law.law_name, correction=name, description=law.description,
-                         summary=laws.sentence(f, sh), shape=sh, params=f.values(),  # type: ignore[typeddict-item]
+                         summary=text, shape=sh, params=f.values(),  # type: ignore[typeddict-item]
                          gain_held_out=ow.gains[name], gain_relative=d.verdict.gain_relative,
-                         literature_form=laws.literature_form(f, sh))
+                         literature_form=laws.literature_form(f, sh), close_rivals=rivals)
 
 
 def _open_world(d: Diagnosis) -> dict[str, Any] | None:

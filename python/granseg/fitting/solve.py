@@ -296,15 +296,19 @@ def loo_params(f: Fit, i: int, damping: float = 1e-6) -> np.ndarray:
     return np.clip(f.x + step, lo, hi)
 
 
-def loo_predict(data: Data, f: Fit, *, exact: bool = False, max_nfev: int = 4
+def loo_predict(data: Data, f: Fit, *, exact: bool = False, max_nfev: int = 4, start: str = "step"
                 ) -> tuple[np.ndarray, list[np.ndarray], list[np.ndarray]]:
     """Leave-one-experiment-out predictions of a fit.
 
     Returns (held-out RMSD per fitted experiment [-], held-out model maps,
-    fold parameter vectors). ``exact=True`` refits each fold from the
-    one-step estimate (``max_nfev`` evaluations), for checking the step.
+    fold parameter vectors). ``exact=True`` refits each fold (``max_nfev``
+    evaluations) from the one-step estimate (``start="step"``) or from the
+    full fit (``start="full"``: safer where the one step overshoots, as for
+    flexible, strongly nonlinear corrections).
     """
-    folds = [loo_params(f, i) for i in f.which]
+    if start not in ("step", "full"):
+        raise ValueError(f"start = {start!r}: choose 'step' or 'full'")
+    folds = [loo_params(f, i) if start == "step" else f.x for i in f.which]
     if exact:
         folds = [fit(data, f.effect, params=f.params, x0=f.values(x), which=[j for j in f.which if j != i],
                      max_nfev=max_nfev, errors=f.error_method).x
