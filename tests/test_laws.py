@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 import pytest
@@ -21,7 +21,6 @@ class _FitStub:
     effect: Effect
     x: np.ndarray
     cov: np.ndarray
-    base: dict = field(default_factory=lambda: {"k": 0.7, "delta_over_H": 0.18})
 
     @property
     def keys(self) -> list[str]:

@@ -90,20 +90,21 @@ def _centred_mean(a: np.ndarray, half: int) -> np.ndarray:
     """Mean over rows ``i-h .. i+h`` with ``h = min(half, i, N-1-i)``, NaN-aware.
 
     Sums the shifted rows directly (no running sums), so a window of equal
-    values returns exactly that value and width 1 returns the input.
+    values returns exactly that value and width 1 returns the input. Row i
+    takes shift d when |d| <= h(i), i.e. for i in [|d|, N-1-|d|]: one slice
+    per shift (this runs for every model map of every fit).
     """
     n_rows = a.shape[0]
-    i = np.arange(n_rows)
-    h = np.minimum(np.minimum(half, i), n_rows - 1 - i)
+    finite = np.isfinite(a)
+    filled = np.where(finite, a, 0.0)
     total = np.zeros(a.shape)
     count = np.zeros(a.shape)
-    shape = (n_rows,) + (1,) * (a.ndim - 1)
     for d in range(-half, half + 1):
-        use = (np.abs(d) <= h).reshape(shape)
-        rows = a[np.clip(i + d, 0, n_rows - 1)]
-        ok = use & np.isfinite(rows)
-        total += np.where(ok, rows, 0.0)
-        count += ok
+        lo, hi = abs(d), n_rows - abs(d)
+        if lo >= hi:
+            continue
+        total[lo:hi] += filled[lo + d:hi + d]
+        count[lo:hi] += finite[lo + d:hi + d]
     with np.errstate(invalid="ignore", divide="ignore"):
         return np.where(count > 0, total / np.maximum(count, 1), np.nan)
 

@@ -48,7 +48,14 @@ class OpenWorld:
     held_out_layers: dict[str, list[np.ndarray]]
     gains: dict[str, float]
     seconds: float
-    shapes: dict[str, dict[str, Any]] = field(default_factory=dict)
+    _shapes: dict[str, tuple[dict[str, Any], dict[str, Any] | None]] = field(default_factory=dict, repr=False)
+
+    def shape(self, name: str) -> tuple[dict[str, Any], dict[str, Any] | None]:
+        """(fitted shape, literature form or None) of one correction, computed once."""
+        if name not in self._shapes:
+            sh = laws.shape(self.fits[name])
+            self._shapes[name] = (sh, laws.literature_form(self.fits[name], sh))
+        return self._shapes[name]
 
     def record(self, name: str) -> dict[str, Any]:
         """JSON-ready summary of one correction."""
@@ -84,5 +91,4 @@ def explore(data: Data, base: Fit, baseline_held_out: np.ndarray, *, max_nfev: i
         held[name], layers[name], _ = loo_predict(data, fits[name], exact=True, max_nfev=LOO_NFEV, start="full")
         gains[name] = float(np.mean(baseline_held_out - held[name]))
         log(f"open world: {name} held-out RMSD {np.mean(held[name]):.4f} (gain {gains[name]:+.4f})")
-    ow = OpenWorld(T, fits, held, layers, gains, time.perf_counter() - t0)
-    return ow
+    return OpenWorld(T, fits, held, layers, gains, time.perf_counter() - t0)

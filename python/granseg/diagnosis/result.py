@@ -179,7 +179,7 @@ def departure(d: Diagnosis) -> DepartureJSON | None:
         return None
     f = ow.fits[name]
     law: laws.LawCorrection = f.effect  # type: ignore[assignment]
-    sh = ow.shapes.setdefault(name, laws.shape(f))
+    sh, lit = ow.shape(name)
     base = float(np.mean(d.held_out["baseline"]))
     # another law predicting within the gain threshold of the named one: the data do not separate them
     rivals = [{"correction": n, "law": ow.fits[n].effect.law_name, "gain_held_out": g,  # type: ignore[attr-defined]
@@ -192,7 +192,7 @@ def departure(d: Diagnosis) -> DepartureJSON | None:
     return DepartureJSON(law=law.law_name, correction=name, description=law.description,
                          summary=text, shape=sh, params=f.values(),  # type: ignore[typeddict-item]
                          gain_held_out=ow.gains[name], gain_relative=d.verdict.gain_relative,
-                         literature_form=laws.literature_form(f, sh), close_rivals=rivals)
+                         literature_form=lit, close_rivals=rivals)
 
 
 def _open_world(d: Diagnosis) -> dict[str, Any] | None:

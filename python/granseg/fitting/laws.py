@@ -46,7 +46,7 @@ from granseg.fitting.effects import Effect, ExpInfo, Param
 from granseg.fitting.solve import Fit
 
 __all__ = ["KNOTS", "LAWS", "N_BASIS", "PRIOR_SD", "LawCorrection", "basis", "build", "literature_form",
-           "sentence", "shape"]
+           "sentence", "shape", "table_params"]
 
 #: The core's table knots on [0, 1] (``N_KNOTS`` in src/laws.rs).
 KNOTS = np.linspace(0.0, 1.0, 17)
@@ -76,6 +76,13 @@ def basis(n: int = N_BASIS, centred: bool = False) -> np.ndarray:
         B = B - B.mean(axis=0)
     U, sv, _ = np.linalg.svd(B, full_matrices=False)
     return U[:, sv > 1e-9 * sv.max()] * math.sqrt(KNOTS.size)
+
+
+def table_params(table: str, log_factor: np.ndarray, time_scale: float) -> dict[str, float]:
+    """Solver parameters setting the core's ``table`` to ``log_factor`` at the 17 knots (clipped to
+    the core's limit) and the time tables' scale ``law_time`` [s]."""
+    knots = np.clip(np.asarray(log_factor, dtype=float), -MAX_LOG_FACTOR, MAX_LOG_FACTOR)
+    return {**{f"{table}_{j}": float(v) for j, v in enumerate(knots)}, "law_time": float(time_scale)}
 
 
 class LawCorrection(Effect):
@@ -112,9 +119,7 @@ class LawCorrection(Effect):
     def solver_params(self, x: Mapping[str, float], exp: ExpInfo) -> dict[str, float]:
         out = super().solver_params(x, exp)
         if self.table is not None:
-            knots = np.clip(self.log_factor(x), -MAX_LOG_FACTOR, MAX_LOG_FACTOR)
-            out.update({f"{self.table}_{j}": float(v) for j, v in enumerate(knots)})
-            out["law_time"] = self.time_scale
+            out.update(table_params(self.table, self.log_factor(x), self.time_scale))
         return out
 
     def factor(self, log_factor: np.ndarray) -> np.ndarray:
@@ -300,6 +305,8 @@ class Form:
     constants: tuple[str, ...]
     start: tuple[float, ...]
     g: Callable[[np.ndarray, np.ndarray, float], np.ndarray]
+    lower: tuple[float, ...]
+    upper: tuple[float, ...]
     centred: bool = False
 
 
@@ -314,19 +321,19 @@ def _power(x: np.ndarray, p: np.ndarray, d: float) -> np.ndarray:
 
 def _gauss(x: np.ndarray, p: np.ndarray, d: float) -> np.ndarray:
     # gdot ~ exp(-(z / w)^2) instead of exp(-z / delta): log-factor = C + z/delta - (z/w)^2
-    return p[0] + x / d - (x / max(abs(p[1]), 1e-3)) ** 2
+    return p[0] + x / d - (x / p[1]) ** 2
 
 
 FORMS: tuple[Form, ...] = (
     Form("segregation_flux", "c", "asymmetric flux", "w c (1 - c) (1 + A (1 - 2 c))",
          "asymmetric segregation flux in the spirit of Gajjar & Gray (2014, J. Fluid Mech. 757)",
-         ("A",), (0.0,), _asym, centred=True),
+         ("A",), (0.0,), _asym, (-0.99,), (0.99,), centred=True),
     Form("diffusivity", "z/H", "power of the shear rate", "D = b' gdot^q D_p^2 (gdot in 1/s)",
          "shear-rate scaling of self-diffusion, q = 1 in Utter & Behringer (2004, Phys. Rev. E 69)",
-         ("C", "q"), (0.0, 1.0), _power),
+         ("C", "q"), (0.0, 1.0), _power, (-np.inf, -np.inf), (np.inf, np.inf)),
     Form("shear_profile", "z/H", "Gaussian shear band", "gdot ~ exp(-(z / w)^2), w in units of H",
          "error-function velocity profiles of wide shear zones, Fenistein & van Hecke (2003, Nature 425)",
-         ("C", "w"), (0.0, 0.3), _gauss),
+         ("C", "w"), (0.0, 0.3), _gauss, (-np.inf, 1e-3), (np.inf, np.inf)),
 )
 
 
@@ -349,12 +356,10 @@ def literature_form(f: Fit, sh: Mapping[str, Any] | None = None) -> dict[str, An
                 h = h - h.mean()
             return (h - g) / sd
 
-        sol = least_squares(resid, np.array(form.start, dtype=float))
+        sol = least_squares(resid, np.array(form.start, dtype=float), bounds=(form.lower, form.upper))
         dev = np.abs(sol.fun)
         if np.all(dev <= Z_BAND) and (best is None or dev.max() < best[0]):
             consts = dict(zip(form.constants, map(float, sol.x), strict=True))
-            if form.name == "Gaussian shear band":
-                consts["w"] = abs(consts["w"])
             curve = sol.fun * sd + g  # the form's log-factor at the knots
             best = (float(dev.max()), {"name": form.name, "expression": form.expression,
                                        "reference": form.reference, "constants": consts,

@@ -310,9 +310,13 @@ def loo_predict(data: Data, f: Fit, *, exact: bool = False, max_nfev: int = 4, s
         raise ValueError(f"start = {start!r}: choose 'step' or 'full'")
     folds = [loo_params(f, i) if start == "step" else f.x for i in f.which]
     if exact:
-        folds = [fit(data, f.effect, params=f.params, x0=f.values(x), which=[j for j in f.which if j != i],
-                     max_nfev=max_nfev, errors=f.error_method).x
-                 for x, i in zip(folds, f.which, strict=True)]
-    layers = model_maps(data, f.effect, [(f.values(x), i) for x, i in zip(folds, f.which, strict=True)])
+        # each fold's fit maps every experiment at its optimum, the one left out too
+        refits = [fit(data, f.effect, params=f.params, x0=f.values(x), which=[j for j in f.which if j != i],
+                      max_nfev=max_nfev, errors=f.error_method)
+                  for x, i in zip(folds, f.which, strict=True)]
+        folds = [r.x for r in refits]
+        layers = [r.layers[i] for r, i in zip(refits, f.which, strict=True)]
+    else:
+        layers = model_maps(data, f.effect, [(f.values(x), i) for x, i in zip(folds, f.which, strict=True)])
     out = np.array([rmsd(data, i, lay) for i, lay in zip(f.which, layers, strict=True)])
     return out, layers, folds

@@ -263,8 +263,7 @@ def departure(d: Diagnosis) -> Figure | None:
     ow = d.open_world
     f = ow.fits[name]
     law: laws.LawCorrection = f.effect  # type: ignore[assignment]
-    sh = ow.shapes.setdefault(name, laws.shape(f))
-    lit = laws.literature_form(f, sh)
+    sh, lit = ow.shape(name)
     base = float(np.mean(d.held_out["baseline"]))
     named = d.verdict.law == name
     with style():

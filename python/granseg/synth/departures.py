@@ -27,11 +27,11 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 
 from granseg.fitting.effects import Effect, ExpInfo, Param, register
+from granseg.fitting.laws import KNOTS, table_params
 from granseg.model import defaults
 
 __all__ = ["CameraSag", "FluxAsymmetry", "MixingBurst", "MixingLayer", "ShearGaussian"]
 
-KNOTS = np.linspace(0.0, 1.0, 17)
 #: The time scale of the hidden time tables [s] (the knots' t = 1).
 LAW_TIME = 3600.0
 
@@ -54,11 +54,7 @@ class _Departure(Effect):
         raise NotImplementedError
 
     def solver_params(self, x: Mapping[str, float], exp: ExpInfo) -> dict[str, float]:
-        out = super().solver_params(x, exp)
-        g = np.clip(self.log_factor(x), -6.0, 6.0)
-        out.update({f"{self.table}_{j}": float(v) for j, v in enumerate(g)})
-        out["law_time"] = LAW_TIME
-        return out
+        return {**super().solver_params(x, exp), **table_params(self.table, self.log_factor(x), LAW_TIME)}
 
 
 @register
