@@ -6,11 +6,14 @@ from collections.abc import Mapping, Sequence
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from granseg.calibration import calibrate
 from granseg.cli.demo import HIDDEN
 from granseg.diagnosis import diagnose
 from granseg.fitting import REGISTRY, Data, Effect, ExpInfo, Param, causes, register, shifted_times
+from granseg.fitting.solve import compress
 from granseg.synth.virtual import EFFECTS, Condition, campaign
 
 FIVE = [Condition("steel", "POM", 0.5, 5.73), Condition("glass", "PP", 0.5, 2.04),
@@ -117,3 +120,21 @@ def test_synth_effects_come_from_the_registry(toy_cause):
 def test_data_defaults_to_the_fitting_cells():
     maps = campaign(conditions=FIVE[:1], seed=1, noise=False, duration=60.0)
     assert Data.of(maps).opts["n_cells"] == 90
+
+
+@settings(max_examples=40, deadline=None)
+@given(sizes=st.lists(st.integers(1, 40), min_size=1, max_size=5), p=st.integers(1, 6), seed=st.integers(0, 10**6))
+def test_the_compressed_problem_has_the_cost_of_every_step_of_the_full_one(sizes, p, seed):
+    """What scipy sees (p + 1 rows) must give the same cost for every step, so the same fit."""
+    rng = np.random.default_rng(seed)
+    jac = [rng.normal(size=(n, p)) for n in sizes]
+    res = [rng.normal(size=n) for n in sizes]
+    if seed % 2:  # a parameter the maps cannot see
+        for j in jac:
+            j[:, 0] = 0.0
+    r_small, j_small = compress(res, jac)
+    assert r_small.shape == (p + 1,) and j_small.shape == (p + 1, p)
+    J, r = np.vstack(jac), np.concatenate(res)
+    for s in rng.normal(size=(3, p)):
+        assert np.sum((j_small @ s + r_small) ** 2) == pytest.approx(np.sum((J @ s + r) ** 2), rel=1e-9)
+    np.testing.assert_allclose(j_small.T @ r_small, J.T @ r, atol=1e-9)
