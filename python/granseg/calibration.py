@@ -11,8 +11,9 @@ model evaluation is one parallel sweep over all experiments:
    (``fit(data, Baseline())``) from the grid point with the lowest mean RMSD,
    on the residuals of every (time, layer) entry of every experiment, each
    experiment weighted so that it counts once (see
-   :mod:`granseg.fitting.observe`). Standard errors by the ``"jacobian"``
-   estimator of :mod:`granseg.fitting.solve`. Where the maps show grains of
+   :mod:`granseg.fitting.observe`). Standard errors, 95 % intervals and
+   correlations by :data:`DEFAULT_ERRORS` (:mod:`granseg.fitting.uncertainty`;
+   ``Calibration.uncertainty``, ``"intervals"`` in the JSON). Where the maps show grains of
    one kind in layers the refined model calls pure at the stratified start
    (a confusion of the two kinds by the frame analysis), the confusion is
    measured there (:mod:`granseg.fitting.confusion`), put into the
@@ -55,14 +56,26 @@ from granseg.fitting import (
     evaluate,
     factorial,
     fit,
+    intervals,
 )
+from granseg.fitting.solve import ERROR_METHODS, MIN_CLUSTERS
+from granseg.fitting.uncertainty import Uncertainty
 from granseg.maps import Campaign, Map, check_accepted, load_campaign
 from granseg.model import defaults
 
-__all__ = ["DEFAULT_GRID", "Calibration", "CalibrationWarning", "ExperimentOptimum", "calibrate", "check_grid"]
+__all__ = ["DEFAULT_ERRORS", "DEFAULT_GRID", "ERRORS", "Calibration", "CalibrationWarning", "ExperimentOptimum", "calibrate", "check_grid"]
 
 DEFAULT_GRID: dict[str, tuple[float, ...]] = {"k": (0.5, 0.6, 0.7), "delta_over_H": (0.18, 0.20, 0.22)}
 FIXED_BY_MAPS = ("rho_h", "rho_l", "c0")
+#: Error method of a calibration: "auto" takes the experiments as clusters when
+#: there are at least MIN_CLUSTERS of them, else counts entries ("jacobian", with a
+#: note). Chosen by coverage (benches/bench_coverage.py): with 16 experiments the
+#: cluster errors match the estimates' actual spread under every noise process,
+#: where "jacobian" states them 2-4 x too small once grains persist in view
+#: (BENCHMARKS.md "Uncertainty").
+DEFAULT_ERRORS = "auto"
+#: The error methods calibrate accepts.
+ERRORS = ("auto", *ERROR_METHODS)
 
 
 # --------------------------------------------------------------------------- results
@@ -121,6 +134,7 @@ class Calibration:
     at_bound: list[str] = field(default_factory=list)
     fit: Fit | None = field(default=None, repr=False)
     data: Data | None = field(default=None, repr=False)
+    uncertainty: Uncertainty | None = field(default=None, repr=False)
 
     @property
     def grid_mean(self) -> np.ndarray:
@@ -154,6 +168,7 @@ class Calibration:
             "refined": self.refined, "converged": self.converged, "message": self.message,
             "at_bound": list(self.at_bound), "n_evaluations": self.n_evaluations, "elapsed_s": self.elapsed,
             "settings": self.settings,
+            "intervals": None if self.uncertainty is None else self.uncertainty.to_dict(),
         }
         if self.per_experiment is not None:
             out["per_experiment"] = {k: v.to_dict() for k, v in self.per_experiment.items()}
@@ -264,6 +279,7 @@ def calibrate(
     atol: float | None = None,
     fd_rel: float = 5e-3,
     max_nfev: int = 40,
+    errors: str = DEFAULT_ERRORS,
     client: Any = None,
     progress: bool = True,
     accept_flagged: bool = False,
@@ -286,12 +302,17 @@ def calibrate(
         :data:`granseg.fitting.DEFAULT_N_CELLS` cells and the core's tolerances).
     fd_rel : relative forward-difference step of the Jacobian.
     max_nfev : cap on residual evaluations per refinement (each one sweep).
+    errors : how the standard errors and 95 % intervals are estimated: ``"auto"``
+        (default, :data:`DEFAULT_ERRORS`) or one of
+        :data:`granseg.fitting.solve.ERROR_METHODS` (see :mod:`granseg.fitting.uncertainty`).
     client : a ``dask.distributed.Client``; passed to ``granseg.sweep``.
     progress : print a counted line per sweep to stderr.
     accept_flagged : use maps that failed their frame-analysis quality checks
         (refused by default with :class:`granseg.errors.FlaggedMapError`).
     """
     t_start = time.perf_counter()
+    if errors not in ERRORS:
+        raise ValueError(f"errors = {errors!r}: choose one of {', '.join(ERRORS)}")
     maps = as_maps(campaign)
     check_accepted(maps, accept_flagged)
     grid = check_grid(grid, list(defaults()))
@@ -305,7 +326,7 @@ def calibrate(
     x0 = np.clip([points[int(np.nanargmin(table.mean(axis=1)))][k] for k in keys], *bnds)
     params = _free_params(grid, bnds, x0, fd_rel)
     if refine:
-        f = fit(data, Baseline(), params=params, max_nfev=max_nfev, errors="jacobian")
+        f = fit(data, Baseline(), params=params, max_nfev=max_nfev, errors=_usable(errors, data.n, log))
         f = _with_confusion(data, f, params, max_nfev)
     else:
         f = evaluate(data, Baseline(), params, dict(zip(keys, x0, strict=True)))
@@ -321,13 +342,31 @@ def calibrate(
         refined=refine, converged=f.converged, message=f.message, model_layers=f.layers,
         n_evaluations=f.nfev, elapsed=time.perf_counter() - t_start, settings=settings,
         per_experiment=per, at_bound=f.at_bounds() if refine else [], fit=f, data=data,
+        uncertainty=intervals(data, f) if refine else None,
     )
+    for k in [k for k in cal.uncertainty.at_bound if k not in cal.at_bound] if cal.uncertainty else []:
+        warnings.warn(f"calibrate: the 95 % interval of {k} reaches a bound of its range "
+                      f"{settings['bounds'][k]}; it is cut there (widen bounds=)", CalibrationWarning, stacklevel=2)
     for k in cal.at_bound:
         warnings.warn(f"calibrate: the refined {k} = {cal.best[k]:.4g} lies on a bound of its range "
                       f"{settings['bounds'][k]}; the optimum may lie beyond it (widen bounds=)",
                       CalibrationWarning, stacklevel=2)
     log(f"done: {data.n_runs} runs in {data.n_sweeps} sweeps, {cal.elapsed:.1f} s")
     return cal
+
+
+def _usable(errors: str, n_experiments: int, log: Callable[[str], None]) -> str:
+    """The error method for ``errors`` (``"auto"``: experiments as clusters from
+    MIN_CLUSTERS experiments on, else entries), ``"jacobian"`` when there is one experiment."""
+    if errors == "auto":
+        errors = "cluster" if n_experiments >= MIN_CLUSTERS else "jacobian"
+        if errors == "jacobian":
+            log(f"{n_experiments} experiments: too few clusters for robust errors; counting entries as "
+                f"independent (too small where grains persist in view)")
+    if errors == "jacobian" or n_experiments >= 2:
+        return errors
+    log(f"one experiment: no {errors} errors; counting entries as independent (too small where grains persist)")
+    return "jacobian"
 
 
 def _with_confusion(data: Data, f: Fit, params: list[Param], max_nfev: int) -> Fit:
@@ -340,7 +379,7 @@ def _with_confusion(data: Data, f: Fit, params: list[Param], max_nfev: int) -> F
     data.confusion = conf.share
     applied = {p: round(float(v["share"]), 4) for p, v in conf.by_pair.items() if v["applied"]}
     data.log(f"measured confusion of the two kinds on the stratified start: {applied}; refitting with it")
-    return fit(data, Baseline(), params=params, x0=f.values(), max_nfev=max_nfev, errors="jacobian")
+    return fit(data, Baseline(), params=params, x0=f.values(), max_nfev=max_nfev, errors=f.error_method)
 
 
 def _bounds_arrays(keys: list[str], bounds: Mapping[str, tuple[float, float]] | None,

@@ -7,6 +7,10 @@ import contextlib
 from collections.abc import Iterator
 from typing import Any
 
+import numpy as np
+
+from granseg.calibration import DEFAULT_ERRORS, ERRORS
+
 __all__ = ["register", "run", "parse_grid", "parse_bounds", "add_calibration_options"]
 
 
@@ -55,6 +59,10 @@ def add_calibration_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--n-cells", type=int, default=None, help="finite volumes over the depth")
     p.add_argument("--rtol", type=float, default=None, help="solver relative tolerance")
     p.add_argument("--max-nfev", type=int, default=40, help="cap on refinement evaluations")
+    p.add_argument("--errors", choices=ERRORS, default=DEFAULT_ERRORS,
+                   help="standard errors and 95 %% intervals: auto (default: experiments as clusters "
+                        "from 8 experiments on), cluster, jackknife (leave one experiment out), or "
+                        "jacobian (entries counted as independent)")
     p.add_argument("--dask", metavar="ADDRESS", default=None,
                    help="dask scheduler address ('local' starts a threaded LocalCluster)")
     p.add_argument("--accept-flagged", action="store_true",
@@ -66,7 +74,7 @@ def calibration_kwargs(args: argparse.Namespace) -> dict[str, Any]:
     return dict(grid=parse_grid(args.grid), bounds=parse_bounds(args.bounds),
                 refine=not args.no_refine, per_experiment=args.per_experiment,
                 n_cells=args.n_cells, rtol=args.rtol, max_nfev=args.max_nfev,
-                accept_flagged=args.accept_flagged)
+                errors=args.errors, accept_flagged=args.accept_flagged)
 
 
 @contextlib.contextmanager
@@ -122,6 +130,13 @@ def summary(cal: Any) -> str:
     pars = ", ".join(f"{k} = {v:.4f} +- {cal.stderr[k]:.4f}" for k, v in cal.best.items())
     lines = [f"\n{what}: {pars}; mean RMSD {cal.rmsd_mean:.4f}"
              + ("" if cal.converged else f" ({cal.message})")]
+    u = cal.uncertainty
+    if u is not None:
+        lo, hi = u.interval
+        ivs = ", ".join(f"{k} in [{a:.4f}, {b:.4f}]" for k, a, b in zip(u.names, lo, hi, strict=True))
+        lines.append(f"  {100 * u.level:.0f} % intervals ({u.method} errors, {u.dof:.0f} degrees of freedom): {ivs}"
+                     if np.isfinite(u.dof) else f"  {100 * u.level:.0f} % intervals ({u.method} errors): {ivs}")
+        lines += [f"  note: {w}" for w in u.warnings()]
     for k in cal.at_bound:
         lines.append(f"  note: {k} ended on a bound of its range {cal.settings['bounds'][k]}: the optimum may "
                      f"lie beyond it; widen it with --bounds {k}=LO:HI")

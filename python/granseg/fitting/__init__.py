@@ -26,7 +26,16 @@ from granseg.fitting.effects import (
     register,
 )
 from granseg.fitting.observe import DEFAULT_N_CELLS, Data, model_maps, residual, rmsd, shifted_times
-from granseg.fitting.solve import Fit, covariance, evaluate, factorial, fit, loo_params, loo_predict
+from granseg.fitting.solve import (
+    Fit,
+    covariance,
+    evaluate,
+    factorial,
+    fit,
+    intervals,
+    loo_params,
+    loo_predict,
+)
 
 __all__ = [
     "BASE_PARAMS",
@@ -41,6 +50,7 @@ __all__ = [
     "causes",
     "confusion",
     "covariance",
+    "intervals",
     "evaluate",
     "factorial",
     "fit",

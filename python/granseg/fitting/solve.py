@@ -8,16 +8,18 @@ n_experiments runs at once); the last point is cached so that scipy's
 separate calls for residuals and Jacobian cost one sweep. scipy sees the
 problem compressed to p + 1 rows (:func:`compress`, exact: same steps).
 
-Standard errors, two estimators in one place (:func:`covariance`):
+Standard errors (:func:`covariance`, :func:`intervals`; the estimators live
+in :mod:`granseg.fitting.uncertainty`, shared by every fit in granseg):
 
 * ``"jacobian"``: the weighted-least-squares covariance
   (:func:`granseg.fit.weighted_covariance`) inflated by the maps' smoothing
   width (a moving average of n frames leaves about 1/n as many independent
   residuals). Right for independent frame noise; too small when grains stay
-  in view for many frames (issue 18 measures by how much);
+  in view for many frames (BENCHMARKS.md "Uncertainty" measures by how much);
 * ``"cluster"``: cluster-robust sandwich with the experiments as clusters:
   residuals within a map are correlated in time and depth, experiments are
-  not. Needs several experiments (with one it is undefined and NaN is returned).
+  not. Needs several experiments (with one it is undefined and NaN is returned);
+* ``"jackknife"``: leave-one-experiment-out, one Gauss-Newton step each.
 
 :func:`loo_predict` predicts every experiment from the others: by default one
 Gauss-Newton step from the full fit with that experiment's Jacobian block
@@ -35,16 +37,19 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from granseg.fit import weighted_covariance
+from granseg.fitting import uncertainty
 from granseg.fitting.effects import Effect, Param
 from granseg.fitting.observe import Data, model_maps, residual, rmsd
 
-__all__ = ["ERROR_METHODS", "PRIOR_WEIGHT", "Fit", "compress", "covariance", "evaluate", "factorial", "fit", "loo_params",
-           "loo_predict"]
+__all__ = ["ERROR_METHODS", "MIN_CLUSTERS", "PRIOR_WEIGHT", "Fit", "compress", "covariance", "evaluate", "factorial",
+           "fit", "intervals", "loo_params", "loo_predict"]
 
 #: Weight of the parameter priors, in units of the stacked sum of squares
 #: (sum over experiments of MSE): one prior sd costs PRIOR_WEIGHT**2.
 PRIOR_WEIGHT = 0.01
-ERROR_METHODS = ("jacobian", "cluster")
+ERROR_METHODS = ("jacobian", "cluster", "jackknife")
+#: Fewer experiments than this and the robust errors say their own spread is uncertain.
+MIN_CLUSTERS = 8
 #: Stopping tolerances of every fit (relative step and cost change).
 XTOL, FTOL, GTOL = 1e-5, 1e-7, 1e-8
 
@@ -283,20 +288,38 @@ def _every_layers(data: Data, effect: Effect, params: list[Param], x: np.ndarray
 
 
 def covariance(data: Data, f: Fit, method: str) -> np.ndarray:
-    """Covariance of ``f.x`` by ``method`` (``"jacobian"`` or ``"cluster"``, module doc)."""
+    """Covariance of ``f.x`` by ``method`` (one of :data:`ERROR_METHODS`, :mod:`granseg.fitting.uncertainty`)."""
     p = len(f.params)
     if p == 0:
         return np.zeros((0, 0))
     if method == "cluster":
-        n = len(f.which)
-        if n < 2:
-            return np.full((p, p), np.nan)
-        Ainv = np.linalg.pinv(f.A)
-        B = (f.g.T @ f.g) * n / (n - 1)
-        return Ainv @ B @ Ainv
+        return uncertainty.cluster_covariance(f.A, f.g)
+    if method == "jackknife":
+        return uncertainty.jackknife_covariance(np.array([loo_params(f, i) for i in f.which]))
     jac, r = np.vstack(f.jac), np.concatenate(f.res)
     w = np.concatenate([np.full(int(data.masks[i].sum()), data.weights[i]) for i in f.which])
     return weighted_covariance(jac, r, w, p) * _smoothing_factor(data, f.which)
+
+
+def intervals(data: Data, f: Fit, method: str | None = None, level: float = uncertainty.LEVEL
+              ) -> uncertainty.Uncertainty:
+    """Standard errors, ``level`` intervals and correlations of ``f`` by ``method`` (default the fit's own).
+
+    The experiments are the clusters of ``"cluster"`` and ``"jackknife"`` (t with
+    n_experiments - 1 degrees of freedom); ``"jacobian"`` counts entries.
+    """
+    method = f.error_method if method is None else method
+    if method not in ERROR_METHODS:
+        raise ValueError(f"method = {method!r}: choose one of {', '.join(ERROR_METHODS)}")
+    cov = f.cov if method == f.error_method else covariance(data, f, method)
+    if method == "jacobian":
+        notes = ["jacobian errors count every map entry as independent: too small where grains stay in view "
+                 "for many frames (BENCHMARKS.md, Uncertainty)"]
+    else:
+        notes = [] if len(f.which) >= MIN_CLUSTERS else [
+            f"{method} errors from only {len(f.which)} experiments: their spread is itself uncertain"]
+    return uncertainty.describe(method, f.keys, f.x, cov, None if method == "jacobian" else len(f.which),
+                                f.bounds(), level, notes)
 
 
 def _smoothing_factor(data: Data, which: Sequence[int]) -> float:
