@@ -21,8 +21,8 @@ from scipy.signal import lfilter
 
 import granseg.fitting.solve as solve
 from granseg.calibration import calibrate
-from granseg.diagnosis import noise as floor
 from granseg.fitting import observe
+from granseg.fitting.dwell import lag_correlation
 from granseg.maps import moving_average
 from granseg.synth import virtual
 from granseg.synth.virtual import NoiseProcess, campaign
@@ -35,7 +35,7 @@ def measured_survival(m, max_lag: int = 30) -> np.ndarray:
     n = m.n.astype(float)
     c_raw = np.where(n > 0, m.n_heavy / np.maximum(n, 1), np.nan)
     c = np.clip(m.c, 0, 1)
-    rho = floor._layer_rho(c_raw, np.where(n > 0, c * (1 - c) / np.maximum(n, 0.5), np.nan), max_lag)
+    rho = lag_correlation(c_raw, np.where(n > 0, c * (1 - c) / np.maximum(n, 0.5), np.nan), max_lag)
     lags = np.arange(1, max_lag + 1)
     s = np.zeros(rho.shape[0])
     for j, r in enumerate(rho):

@@ -20,6 +20,11 @@ model evaluation is one parallel sweep over all experiments:
    observation step and the refinement repeated; ``settings["confusion"]``
    records it per material pair.
 
+Before both stages the dwell of grains in view is measured from the maps'
+counts (:mod:`granseg.fitting.dwell`) and put into the observation step:
+grains that stay in view for many frames show the bed's composition late,
+which a fit without it reads as a slower top (``settings["dwell"]``).
+
 The model map is compared on the measured grid: the layer means at the
 measured times, smoothed with the moving average the map records.
 :func:`granseg.diagnose` starts from this calibration, so both report the
@@ -53,6 +58,7 @@ from granseg.fitting import (
     Fit,
     Param,
     confusion,
+    dwell,
     evaluate,
     factorial,
     fit,
@@ -280,6 +286,7 @@ def calibrate(
     fd_rel: float = 5e-3,
     max_nfev: int = 40,
     errors: str = DEFAULT_ERRORS,
+    view_dwell: bool = True,
     client: Any = None,
     progress: bool = True,
     accept_flagged: bool = False,
@@ -305,6 +312,8 @@ def calibrate(
     errors : how the standard errors and 95 % intervals are estimated: ``"auto"``
         (default, :data:`DEFAULT_ERRORS`) or one of
         :data:`granseg.fitting.solve.ERROR_METHODS` (see :mod:`granseg.fitting.uncertainty`).
+    view_dwell : measure the dwell of grains in view from the counts and model it
+        (:mod:`granseg.fitting.dwell`); False compares the bed's share directly.
     client : a ``dask.distributed.Client``; passed to ``granseg.sweep``.
     progress : print a counted line per sweep to stderr.
     accept_flagged : use maps that failed their frame-analysis quality checks
@@ -320,6 +329,8 @@ def calibrate(
     bnds = _bounds_arrays(keys, bounds, grid)
     log = _printer(progress)
     data = Data.of(maps, dict(n_cells=n_cells, rtol=rtol, atol=atol, client=client), dict(base or {}), log)
+    if view_dwell:
+        _with_dwell(data)
     n_runs = len(maps) * math.prod(len(v) for v in grid.values())
     log(f"factorial design: {data.n} experiments x {n_runs // data.n} points = {n_runs} runs")
     points, table = factorial(data, Baseline(), grid)
@@ -335,7 +346,7 @@ def calibrate(
     settings = {"grid": grid, "bounds": {p.name: [p.lo, p.hi] for p in params},
                 "base": dict(base or {}), **data.solver_settings(), "fd_rel": fd_rel, "max_nfev": max_nfev,
                 "errors": f.error_method, "n_sweeps": data.n_sweeps, "n_runs": data.n_runs,
-                "confusion": data.confusion_record}
+                "confusion": data.confusion_record, "dwell": data.dwell_record}
     cal = Calibration(
         names=data.names, keys=keys, grid_points=points, grid_rmsd=table,
         best=f.values(), stderr=f.errors(), rmsd=dict(zip(data.names, map(float, f.rmsd), strict=True)),
@@ -367,6 +378,19 @@ def _usable(errors: str, n_experiments: int, log: Callable[[str], None]) -> str:
         return errors
     log(f"one experiment: no {errors} errors; counting entries as independent (too small where grains persist)")
     return "jacobian"
+
+
+def _with_dwell(data: Data) -> None:
+    """Measure the dwell of grains in view (:mod:`granseg.fitting.dwell`) and, where the counts
+    show it, put it into the observation step of every later fit."""
+    d = dwell.measure(data.maps, data.exps, data.fixed)
+    data.dwell_record = d.to_dict()
+    if d.applied:
+        data.survival = d.survival
+        data.log(f"grains stay in view: window W = {data.dwell_record['width_Dp']:.1f} D_p from the counts' "
+                 f"decorrelation (its shear band delta/H = {d.delta_over_H:.3f}); modelled in the observation")
+    else:
+        data.log(d.reason)
 
 
 def _with_confusion(data: Data, f: Fit, params: list[Param], max_nfev: int) -> Fit:

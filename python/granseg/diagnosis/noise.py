@@ -30,6 +30,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from granseg.fitting.dwell import lag_correlation, moving_average_factor
 from granseg.maps import Map, moving_average
 
 __all__ = ["NoiseEstimate", "noise_floor", "campaign_floor"]
@@ -53,42 +54,6 @@ class NoiseEstimate:
         return self.method.startswith("counts")
 
 
-def _ma_factor(rho: np.ndarray, n_t: int, window: int) -> np.ndarray:
-    """Variance reduction (n_t,) of the centred moving average of noise with
-    lag correlations ``rho[k-1]`` (k = 1 .. window-1)."""
-    half = (window - 1) // 2
-    i = np.arange(n_t)
-    h = np.minimum(np.minimum(half, i), n_t - 1 - i)
-    out = np.empty(n_t)
-    for hh in np.unique(h):
-        n = 2 * hh + 1
-        k = np.arange(1, n)
-        out[h == hh] = (n + 2.0 * float(((n - k) * rho[: n - 1]).sum())) / n**2
-    return out
-
-
-def _layer_rho(c_raw: np.ndarray, var_raw: np.ndarray, max_lag: int) -> np.ndarray:
-    """Correlation (n_layers, max_lag) of the counting noise at lags 1..max_lag, in [0, 0.995].
-
-    From E[(c_raw(t+k) - c_raw(t))^2] = 2 var_raw (1 - rho_k): no shape is
-    assumed for the decay (grains leave the window at a rate set by the flow,
-    the count itself changes from frame to frame).
-    """
-    n_l = c_raw.shape[1]
-    rho = np.full((n_l, max(max_lag, 1)), np.nan)
-    for k in range(1, max_lag + 1):
-        d2 = (c_raw[k:] - c_raw[:-k]) ** 2
-        v = 0.5 * (var_raw[k:] + var_raw[:-k])
-        ok = np.isfinite(d2) & np.isfinite(v)
-        for j in range(n_l):
-            vj = v[ok[:, j], j].sum()
-            if ok[:, j].sum() > 10 and vj > 1e-9 * ok[:, j].sum():
-                rho[j, k - 1] = 1.0 - d2[ok[:, j], j].sum() / (2.0 * vj)
-    fill = np.nanmedian(rho, axis=0) if np.any(np.isfinite(rho)) else np.zeros(rho.shape[1])
-    fill = np.where(np.isfinite(fill), fill, 0.0)
-    return np.clip(np.where(np.isfinite(rho), rho, fill[None, :]), 0.0, 0.995)
-
-
 def _from_counts(m: Map) -> NoiseEstimate:
     n = m.n.astype(float)
     c_raw = m.c_raw if m.c_raw is not None else np.where(n > 0, m.n_heavy / np.maximum(n, 1), np.nan)
@@ -98,8 +63,8 @@ def _from_counts(m: Map) -> NoiseEstimate:
         # E[c_hat (1 - c_hat)] = c (1 - c) (1 - f / n) with f the averaging factor: undo that bias
         with np.errstate(invalid="ignore", divide="ignore"):
             var_raw = np.where(n > 0, c_hat * (1.0 - c_hat) / np.maximum(n - f, 0.5), np.nan)
-        rho = _layer_rho(c_raw, var_raw, m.smoothing_frames - 1)
-        f = np.column_stack([_ma_factor(rho[j], m.n_times, m.smoothing_frames) for j in range(m.n_layers)])
+        rho = lag_correlation(c_raw, var_raw, m.smoothing_frames - 1)
+        f = np.column_stack([moving_average_factor(rho[j], m.n_times, m.smoothing_frames) for j in range(m.n_layers)])
     return _estimate(m, var_raw * f, rho[:, 0],
                      "counts (binomial, measured frame-to-frame correlation, moving average)")
 

@@ -8,6 +8,10 @@
   layers, observation transform, the map's moving average, residual);
 * :mod:`~granseg.fitting.confusion`: the two kinds' confusion, measured on
   the stratified start of every run and applied in the observation step;
+* :mod:`~granseg.fitting.dwell`: how long grains stay in view, measured from
+  the counts' decorrelation and applied in the observation step;
+* :mod:`~granseg.fitting.uncertainty`: standard errors, intervals and
+  correlations (cluster sandwich, jackknife, entries);
 * :mod:`~granseg.fitting.solve`: one bounded least squares with standard
   errors, the factorial table, leave-one-experiment-out.
 
@@ -15,7 +19,7 @@
 ``granseg.diagnose`` starts from that calibration.
 """
 
-from granseg.fitting import causes, confusion
+from granseg.fitting import causes, confusion, dwell
 from granseg.fitting.effects import (
     BASE_PARAMS,
     REGISTRY,
@@ -49,6 +53,7 @@ __all__ = [
     "Param",
     "causes",
     "confusion",
+    "dwell",
     "covariance",
     "intervals",
     "evaluate",

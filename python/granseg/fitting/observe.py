@@ -3,7 +3,8 @@
 For an effect, a parameter set and one experiment::
 
     time shift -> model layer means at the measured times -> observation
-    transform -> the measured confusion of the two kinds -> the map's moving
+    transform -> the measured confusion of the two kinds -> the view's
+    measured dwell (:mod:`granseg.fitting.dwell`) -> the map's moving
     average -> residual against the map
 
 Every model evaluation of a fit, a factorial table or a leave-one-out
@@ -30,6 +31,7 @@ from typing import Any
 
 import numpy as np
 
+from granseg.fitting.dwell import lagged
 from granseg.fitting.effects import Effect, ExpInfo
 from granseg.maps import Map, moving_average
 from granseg.model import sweep
@@ -62,6 +64,11 @@ class Data:
     confusion: np.ndarray | None = None
     #: the confusion measurement per material pair (JSON-ready), None: not measured
     confusion_record: dict[str, Any] | None = None
+    #: measured survival per frame of a grain in view, per experiment (n_layers,) (:mod:`granseg.fitting.dwell`),
+    #: None: not applied
+    survival: list[np.ndarray] | None = None
+    #: the dwell measurement (JSON-ready), None: not measured
+    dwell_record: dict[str, Any] | None = None
     n_runs: int = 0
     n_sweeps: int = 0
     sweep_seconds: float = 0.0
@@ -113,7 +120,7 @@ def model_maps(data: Data, effect: Effect, runs: Sequence[tuple[Mapping[str, flo
     """What each run (parameters, experiment index) shows on its map's grid.
 
     One sweep for all runs; returns (n_t_i, n_layers) arrays after time
-    shift, observation transform and the map's moving average.
+    shift, observation transform, confusion, dwell and the map's moving average.
     """
     cases, times, rows = [], [], []
     for x, i in runs:
@@ -132,6 +139,8 @@ def model_maps(data: Data, effect: Effect, runs: Sequence[tuple[Mapping[str, flo
         seen = effect.observe(x, data.exps[i], np.asarray(raw)[index])
         if data.confusion is not None and data.confusion[i] > 0:
             seen = data.confusion[i] + (1.0 - 2.0 * data.confusion[i]) * seen
+        if data.survival is not None:
+            seen = lagged(seen, data.survival[i])
         out.append(moving_average(seen, data.maps[i].smoothing_frames, axis=0))
     return out
 
