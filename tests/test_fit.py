@@ -155,3 +155,150 @@ def test_weighted_covariance_matches_the_scatter_of_weighted_fits():
     np.testing.assert_allclose(weighted_covariance(-np.column_stack([np.ones_like(x), x]) * 0.5, r * 0.5,
                                                    np.full(x.size, 0.5), 2),
                                covariance(-np.column_stack([np.ones_like(x), x]), r, 2), rtol=1e-12)
+
+
+# --------------------------------------------------------------------------- 95 % intervals (issue 18)
+
+
+def _ar1(rng: np.random.Generator, n: int, rho: float, sigma: float) -> np.ndarray:
+    """AR(1) noise of marginal standard deviation ``sigma``, started in its stationary state."""
+    from scipy.signal import lfilter
+
+    return lfilter([np.sqrt(1 - rho**2)], [1, -rho], rng.normal(0, 1, n + 200))[200:] * sigma
+
+
+def test_tanh_intervals_cover_under_time_correlated_noise():
+    """AR(1) noise (0.9 per sample) on a tanh curve: the time-block intervals contain the true
+    A, t0 and tau in 88-99 % of 300 repeats, the classical ones (points independent) in far fewer."""
+    rng = np.random.default_rng(18)
+    t = np.arange(0.0, 2400.0, 1.0)
+    truth = np.array([0.85, 800.0, 1100.0])
+    clean = tanh_curve(t, *truth)
+    n_rep = 300
+    hits = {"cluster": np.zeros(3), "jacobian": np.zeros(3)}
+    for _ in range(n_rep):
+        y = clean + _ar1(rng, t.size, 0.9, 0.03)
+        for errors in hits:
+            lo, hi = fit_tanh(t, y, errors=errors).uncertainty.interval
+            hits[errors] += (lo <= truth) & (truth <= hi)
+    cover = {k: v / n_rep for k, v in hits.items()}
+    assert np.all((cover["cluster"] >= 0.88) & (cover["cluster"] <= 0.99)), cover
+    assert np.all(cover["jacobian"] < 0.6), cover
+
+
+def test_tanh_uncertainty_is_time_blocks_and_matches_stderr():
+    rng = np.random.default_rng(4)
+    t = np.arange(0.0, 1200.0, 1.0)
+    r = fit_tanh(t, tanh_curve(t, 0.9, 300.0, 420.0) + _ar1(rng, t.size, 0.8, 0.02))
+    u = r.uncertainty
+    assert u.method == "cluster" and u.names == ["A", "t0", "tau"]
+    assert "time blocks of" in u.notes[0]
+    n_blocks = int(u.notes[0].split(": ")[1].split()[0])
+    assert u.dof == n_blocks - 1 and n_blocks >= 5
+    np.testing.assert_allclose([r.stderr[n] for n in u.names], u.stderr)
+    np.testing.assert_allclose(u.estimate, [r[n] for n in u.names])
+    lo, hi = u.interval
+    assert np.all(lo < u.estimate) and np.all(u.estimate < hi)
+    # tau = t0 + width: the tau row is not the width's
+    assert r.stderr["tau"] != pytest.approx(r.stderr["t0"])
+
+
+def test_tanh_given_blocks_and_too_few_blocks_fall_back_with_a_note():
+    rng = np.random.default_rng(5)
+    t = np.arange(0.0, 600.0, 2.0)
+    y = tanh_curve(t, 0.9, 150.0, 220.0) + rng.normal(0, 0.02, t.size)
+    given = fit_tanh(t, y, block_s=60.0).uncertainty
+    assert given.method == "cluster" and given.dof == 8  # 598 s: 9 whole blocks, the tail joins the last
+    assert "time blocks of 60 s (given)" in given.notes[0]
+    few = fit_tanh(t, y, block_s=200.0)
+    assert few.uncertainty.method == "jacobian" and few.uncertainty.dof == t.size - 3
+    assert any("count the 300 points as independent" in w for w in few.uncertainty.warnings())
+    classical = fit_tanh(t, y, errors="jacobian")
+    assert classical.stderr == pytest.approx(few.stderr)
+    with pytest.raises(ValueError, match="block length must be > 0"):
+        fit_tanh(t, y, block_s=0.0)
+    with pytest.raises(ValueError, match="errors"):
+        fit_tanh(t, y, errors="bootstrap")
+
+
+def test_fit_result_to_dict_has_intervals():
+    import json
+
+    t = np.arange(0.0, 600.0, 2.0)
+    y = tanh_curve(t, 0.9, 150.0, 220.0) + np.random.default_rng(6).normal(0, 0.02, t.size)
+    d = json.loads(json.dumps(fit_tanh(t, y).to_dict()))
+    iv = d["intervals"]
+    assert iv["method"] == "cluster" and iv["level"] == 0.95
+    assert set(iv["params"]) == {"A", "t0", "tau"}
+    for name, p in iv["params"].items():
+        assert p["lo"] < d["params"][name] < p["hi"] and p["stderr"] == pytest.approx(d["stderr"][name])
+    assert any("time blocks" in w for w in iv["warnings"])
+    from granseg.fit import FitResult
+
+    bare = FitResult("tanh", {"A": 1.0}, {"A": 0.1}, 0.0, 3, True, "")
+    assert bare.uncertainty is None and "intervals" not in bare.to_dict()
+
+
+def test_beta_interval_uses_t_on_m_minus_1_dof():
+    from scipy import stats
+
+    rng = np.random.default_rng(3)
+    dR = np.array([8.25, 4.46, 3.70, 2.59, 1.85, 1.40])
+    r = fit_beta(dR, beta_law(dR, 2.27) + rng.normal(0, 0.01, dR.size))
+    u = r.uncertainty
+    assert u.method == "jacobian" and u.dof == dR.size - 1
+    lo, hi = u.interval
+    half = stats.t.ppf(0.975, dR.size - 1) * r.stderr["beta"]
+    assert hi[0] - lo[0] == pytest.approx(2 * half, rel=1e-9)
+    assert r.to_dict()["intervals"]["dof"] == dR.size - 1
+
+
+def test_tau_interval_uses_t_on_m_minus_2_dof_and_bounds():
+    from scipy import stats
+
+    rng = np.random.default_rng(5)
+    dR = np.array([8.25, 4.46, 3.70, 2.59, 1.85, 1.40])
+    r = fit_tau(dR, tau_law(dR, 2500.0, 0.9) * (1 + rng.normal(0, 0.05, dR.size)))
+    u = r.uncertainty
+    assert u.dof == dR.size - 2 and u.names == ["tau_1", "lam"]
+    np.testing.assert_allclose(u.bounds[0], [0.0, -50.0])
+    lo, hi = u.interval
+    np.testing.assert_allclose(hi - lo, 2 * stats.t.ppf(0.975, dR.size - 2) * u.stderr)
+
+
+def test_fit_campaign_results_carry_intervals(tmp_path):
+    rng = np.random.default_rng(11)
+    z = (np.arange(15) + 0.5) * 6e-3
+    for i, rho_h in enumerate((7800, 3500, 2450, 1750)):
+        dR = rho_h / 946.0
+        tau = float(tau_law(dR, 3000.0, 0.8))
+        t = np.arange(0.0, 5 * tau, 2.0)
+        c = np.tile(tanh_curve(t, float(beta_law(dR, 2.3)), 0.6 * tau, tau)[:, None], (1, 15))
+        save_map(tmp_path / f"{i}.npz", c=np.clip(c + rng.normal(0, 0.005, c.shape), 0, 1), t=t, z=z,
+                 name=f"E{i}", heavy="h", light="PP", rho_h=rho_h, rho_l=946.0, c0=0.5, M_g=2.0, M_w=1.093)
+    fits = fit_campaign(load_campaign(tmp_path))
+    d = fits.to_dict()
+    assert all("intervals" in v for v in d["tanh"].values())
+    assert d["beta"]["intervals"]["dof"] == 3 and d["tau"]["intervals"]["dof"] == 2
+
+
+def test_leverage_corrected_cluster_covariance_is_cr2():
+    """cluster_covariance with each cluster's J'J equals the CR2 sandwich written out with the hat matrix."""
+    from scipy.linalg import sqrtm
+
+    from granseg.fitting.uncertainty import cluster_covariance
+
+    rng = np.random.default_rng(0)
+    J, r = rng.normal(size=(120, 3)), rng.normal(size=120)
+    block = np.arange(120) * 8 // 120
+    scores = np.array([J[block == b].T @ r[block == b] for b in range(8)])
+    own = np.array([J[block == b].T @ J[block == b] for b in range(8)])
+    a_inv = np.linalg.inv(J.T @ J)
+    meat = np.zeros((3, 3))
+    for b in range(8):
+        k = block == b
+        s = J[k].T @ np.real(np.linalg.inv(sqrtm(np.eye(k.sum()) - J[k] @ a_inv @ J[k].T))) @ r[k]
+        meat += np.outer(s, s)
+    np.testing.assert_allclose(cluster_covariance(J.T @ J, scores, own), a_inv @ meat @ a_inv * 8 / 7, rtol=1e-8)
+    plain = cluster_covariance(J.T @ J, scores)
+    assert np.all(np.diag(cluster_covariance(J.T @ J, scores, own)) > np.diag(plain))

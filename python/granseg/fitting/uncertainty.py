@@ -14,7 +14,8 @@ one another and let the data say how the noise inside a cluster is
 correlated, through each cluster's score s_c = J_c' r_c:
 
 ``"cluster"``
-    sandwich A^-1 (G/(G-1) sum_c s_c s_c') A^-1 over G clusters;
+    sandwich A^-1 (G/(G-1) sum_c s_c s_c') A^-1 over G clusters (optionally with
+    the scores corrected for the clusters' leverage, CR2: :func:`cluster_covariance`);
 ``"jackknife"``
     (G-1)/G sum_c (x_(c) - mean)(x_(c) - mean)' over the leave-one-cluster-out
     estimates x_(c), each one Gauss-Newton step from the optimum;
@@ -47,10 +48,20 @@ METHODS = ("cluster", "jackknife", "jacobian")
 LEVEL = 0.95
 #: An interval "touches" a bound when it reaches within this share of the range of it.
 BOUND_MARGIN = 1e-6
+#: Largest share of a cluster's noise the CR2 correction takes the fit to have absorbed (a
+#: cluster holding a parameter's whole information has scores of ~0 there; the cap keeps them finite).
+MAX_LEVERAGE = 0.999
 
 
-def cluster_covariance(A: np.ndarray, scores: np.ndarray) -> np.ndarray:
+def cluster_covariance(A: np.ndarray, scores: np.ndarray, cluster_A: np.ndarray | None = None) -> np.ndarray:
     """Cluster-robust sandwich A^+ B A^+, B = G/(G-1) sum_c s_c s_c' (``scores`` (G, p)).
+
+    ``cluster_A`` (G, p, p), each cluster's own J_c'J_c: given, every score is
+    first corrected for the part of its cluster's noise the fit absorbed, which
+    matters when a few clusters carry most of a parameter's information (CR2,
+    Bell & McCaffrey 2002): s_c <- A^{1/2} (I - S_c)^{-1/2} A^{-1/2} s_c with
+    S_c = A^{-1/2} A_c A^{-1/2}, its eigenvalues capped at :data:`MAX_LEVERAGE`
+    (B keeps the G/(G-1)).
 
     NaN when there are fewer than 2 clusters (the spread of the scores is then unknown).
     """
@@ -59,7 +70,22 @@ def cluster_covariance(A: np.ndarray, scores: np.ndarray) -> np.ndarray:
     if n_c < 2:
         return np.full((p, p), np.nan)
     a_inv = np.linalg.pinv(A)
+    if cluster_A is not None:
+        scores = _leverage_corrected(np.asarray(A, dtype=float), np.asarray(cluster_A, dtype=float), scores)
     return a_inv @ (scores.T @ scores * (n_c / (n_c - 1))) @ a_inv
+
+
+def _leverage_corrected(A: np.ndarray, cluster_A: np.ndarray, scores: np.ndarray) -> np.ndarray:
+    """CR2 scores A^{1/2} (I - S_c)^{-1/2} A^{-1/2} s_c (see :func:`cluster_covariance`)."""
+    w, v = np.linalg.eigh((A + A.T) / 2)
+    keep = w > w.max(initial=0.0) * 1e-12
+    root = np.where(keep, np.sqrt(np.clip(w, 0.0, None)), 0.0)
+    root_inv = np.divide(1.0, root, out=np.zeros_like(root), where=keep)
+    a_half, a_half_inv = (v * root) @ v.T, (v * root_inv) @ v.T
+    s = a_half_inv @ cluster_A @ a_half_inv
+    lev, vec = np.linalg.eigh((s + np.swapaxes(s, 1, 2)) / 2)
+    shrink = (vec / np.sqrt(1.0 - np.clip(lev, 0.0, MAX_LEVERAGE))[:, None, :]) @ np.swapaxes(vec, 1, 2)
+    return np.einsum("ij,cjk,kl,cl->ci", a_half, shrink, a_half_inv, scores)
 
 
 def jackknife_covariance(estimates: np.ndarray) -> np.ndarray:
@@ -130,7 +156,8 @@ class Uncertainty:
         """Parameters whose interval reaches a bound of their range."""
         half = self.quantile * self.stderr
         lo, hi = self.bounds
-        tol = BOUND_MARGIN * (hi - lo)
+        with np.errstate(invalid="ignore"):
+            tol = np.where(np.isfinite(hi - lo), BOUND_MARGIN * (hi - lo), 0.0)  # an open range has no margin
         return [n for j, n in enumerate(self.names)
                 if np.isfinite(half[j]) and (self.estimate[j] - half[j] <= lo[j] + tol[j]
                                              or self.estimate[j] + half[j] >= hi[j] - tol[j])]
@@ -163,14 +190,20 @@ class Uncertainty:
 
 def describe(method: str, names: Sequence[str], x: np.ndarray, cov: np.ndarray, n_clusters: int | None,
              bounds: tuple[np.ndarray, np.ndarray], level: float = LEVEL,
-             notes: Sequence[str] = ()) -> Uncertainty:
+             notes: Sequence[str] = (), dof: float | None = None) -> Uncertainty:
     """An :class:`Uncertainty` from a covariance by ``method`` over ``n_clusters`` clusters
-    (t with n - 1 degrees of freedom; None: entries, normal quantile)."""
+    (t with n - 1 degrees of freedom; None: entries, normal quantile).
+
+    ``dof`` overrides the t quantile's degrees of freedom, e.g. m - p for the classical
+    s^2 (J'J)^-1 of m independent points and p parameters (<= 0: unknown, NaN)."""
     if method not in METHODS:
         raise ValueError(f"method = {method!r}: choose one of {', '.join(METHODS)}")
     if not 0 < level < 1:
         raise ValueError(f"level = {level!r}: must lie in (0, 1)")
-    dof = float("inf") if n_clusters is None else float(max(n_clusters - 1, 0)) or float("nan")
+    if dof is not None:
+        dof = float(dof) if dof > 0 else float("nan")
+    else:
+        dof = float("inf") if n_clusters is None else float(max(n_clusters - 1, 0)) or float("nan")
     lo, hi = (np.asarray(b, dtype=float) for b in bounds)
     return Uncertainty(method, list(names), np.asarray(x, dtype=float), np.asarray(cov, dtype=float), dof,
                        (lo, hi), level, list(notes))
