@@ -386,7 +386,7 @@ def _with_dwell(data: Data) -> None:
     d = dwell.measure(data.maps, data.exps, data.fixed)
     data.dwell_record = d.to_dict()
     if d.applied:
-        data.survival = d.survival
+        data.dwell_width = d.width
         data.log(f"grains stay in view: window W = {data.dwell_record['width_Dp']:.1f} D_p from the counts' "
                  f"decorrelation (its shear band delta/H = {d.delta_over_H:.3f}); modelled in the observation")
     else:

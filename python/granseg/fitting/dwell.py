@@ -16,7 +16,10 @@ low, 4-5 of its standard errors (``benches/probe_view_lag.py``).
 The survival is measured from the maps' counts, not assumed. A grain leaves
 when the flow has carried it across the window's width W, so per frame
 s_j = exp(-|v(z_j)| dt / W) with v the shear profile v(z) = v0 exp(-z / delta)
-of MODEL.md. The counting noise of a layer is then correlated over lag l
+of MODEL.md. Only W is carried into the fits: each model run lags its map
+with its own velocity profile (:func:`survival`), so a cause that changes the
+shear band of some experiments (a load-dependent band) changes their dwell
+with it, as it does in the bed. The counting noise of a layer is then correlated over lag l
 frames as a s_j^l (a <= 1: the count itself changes from frame to frame,
 misread grains do not persist). :func:`measure` fits W, delta/H and one
 overlap a per experiment to the measured correlations at lags 1 to
@@ -44,7 +47,8 @@ from scipy.signal import lfilter
 from granseg.maps import Map
 from granseg.model import defaults, velocity_profile
 
-__all__ = ["MAX_LAG", "MIN_CORRELATION", "Dwell", "lag_correlation", "lagged", "measure", "moving_average_factor"]
+__all__ = ["MAX_LAG", "MIN_CORRELATION", "Dwell", "lag_correlation", "lagged", "measure", "moving_average_factor",
+           "survival"]
 
 #: Lags [frames] of the correlations fitted.
 MAX_LAG = 20
@@ -60,8 +64,9 @@ DELTA_RANGE = (0.02, 1.0)
 class Dwell:
     """The measured dwell of grains in view.
 
-    ``survival`` per experiment (n_layers,) per frame [-] (None where not
-    applied); ``width`` W [m] and ``delta_over_H`` [-] of the fit; ``rho1``
+    ``survival`` per experiment (n_layers,) per frame [-] at the measured
+    delta/H (None where not applied); ``width`` W [m] and ``delta_over_H``
+    [-] of the fit; ``rho1``
     the pooled lag-one correlation of the counting noise; ``overlap`` the
     mean fitted a; ``reason`` why it is or is not applied.
     """
@@ -154,11 +159,21 @@ def _counted(m: Map, max_lag: int) -> tuple[np.ndarray, np.ndarray] | None:
     return rho[:, :max_lag], var
 
 
-def _speed_per_frame(exp: Any, m: Map, delta_over_H: float, fixed: dict[str, float]) -> np.ndarray:
-    """|v(z_j)| dt [m] per layer: the distance the wall's grains travel between frames."""
-    params = {**fixed, **exp.case(), "delta_over_H": delta_over_H}
+def _speed_per_frame(params: dict[str, float], m: Map) -> np.ndarray:
+    """|v(z_j)| dt [m] per layer: the distance the wall's grains travel between frames
+    (the profile at t = 0: a drifting band is taken at its start)."""
     dt = float(np.median(np.diff(m.t))) if m.n_times > 1 else 0.0
     return np.abs(velocity_profile(np.asarray(m.z, dtype=float), 0.0, **params)[0]) * dt
+
+
+def survival(params: dict[str, float], m: Map, width: float) -> np.ndarray:
+    """Survival per frame (n_layers,) of a grain in view of map ``m`` when the bed moves with the
+    velocity profile of the model parameters ``params`` and the window is ``width`` [m] wide."""
+    return np.exp(-_speed_per_frame(params, m) / width)
+
+
+def _params(exp: Any, delta_over_H: float, fixed: dict[str, float]) -> dict[str, float]:
+    return {**fixed, **exp.case(), "delta_over_H": delta_over_H}
 
 
 def measure(maps: Sequence[Map], exps: Sequence[Any], fixed: dict[str, float] | None = None) -> Dwell:
@@ -186,7 +201,7 @@ def measure(maps: Sequence[Map], exps: Sequence[Any], fixed: dict[str, float] | 
         inv_width, delta = np.exp(x[0]), x[1]
         out = []
         for m, e, r, w in rows:
-            pred = np.exp(-_speed_per_frame(e, m, delta, fixed) * inv_width)[:, None] ** lags[None, :]
+            pred = np.exp(-_speed_per_frame(_params(e, delta, fixed), m) * inv_width)[:, None] ** lags[None, :]
             ww = np.sqrt(w)[:, None]
             a = np.clip((w[:, None] * r * pred).sum() / max((w[:, None] * pred**2).sum(), 1e-12), 0.0, 1.0)
             out.append((ww * (r - a * pred)).ravel())
@@ -200,8 +215,8 @@ def measure(maps: Sequence[Map], exps: Sequence[Any], fixed: dict[str, float] | 
     width, delta = float(np.exp(-sol.x[0])), float(sol.x[1])
     overlaps = []
     for m, e, r, w in rows:
-        pred = np.exp(-_speed_per_frame(e, m, delta, fixed) / width)[:, None] ** lags[None, :]
+        pred = survival(_params(e, delta, fixed), m, width)[:, None] ** lags[None, :]
         overlaps.append(float(np.clip((w[:, None] * r * pred).sum() / max((w[:, None] * pred**2).sum(), 1e-12), 0, 1)))
-    survival = [np.exp(-_speed_per_frame(e, m, delta, fixed) / width) for m, e in zip(maps, exps, strict=True)]
+    seen = [survival(_params(e, delta, fixed), m, width) for m, e in zip(maps, exps, strict=True)]
     return Dwell(True, f"measured from the counts' decorrelation ({len(rows)} of {len(maps)} maps with counts)",
-                 survival, width, delta, rho1, float(np.mean(overlaps)))
+                 seen, width, delta, rho1, float(np.mean(overlaps)))

@@ -31,7 +31,7 @@ from typing import Any
 
 import numpy as np
 
-from granseg.fitting.dwell import lagged
+from granseg.fitting.dwell import lagged, survival
 from granseg.fitting.effects import Effect, ExpInfo
 from granseg.maps import Map, moving_average
 from granseg.model import sweep
@@ -64,9 +64,9 @@ class Data:
     confusion: np.ndarray | None = None
     #: the confusion measurement per material pair (JSON-ready), None: not measured
     confusion_record: dict[str, Any] | None = None
-    #: measured survival per frame of a grain in view, per experiment (n_layers,) (:mod:`granseg.fitting.dwell`),
-    #: None: not applied
-    survival: list[np.ndarray] | None = None
+    #: measured width [m] of the view's window that grains cross before they leave it
+    #: (:mod:`granseg.fitting.dwell`), None: no dwell modelled
+    dwell_width: float | None = None
     #: the dwell measurement (JSON-ready), None: not measured
     dwell_record: dict[str, Any] | None = None
     n_runs: int = 0
@@ -135,12 +135,13 @@ def model_maps(data: Data, effect: Effect, runs: Sequence[tuple[Mapping[str, flo
     data.n_runs += len(cases)
     data.n_sweeps += 1
     out = []
-    for (x, i), raw, index in zip(runs, res.layers, rows, strict=True):
+    for (x, i), case, raw, index in zip(runs, cases, res.layers, rows, strict=True):
         seen = effect.observe(x, data.exps[i], np.asarray(raw)[index])
         if data.confusion is not None and data.confusion[i] > 0:
             seen = data.confusion[i] + (1.0 - 2.0 * data.confusion[i]) * seen
-        if data.survival is not None:
-            seen = lagged(seen, data.survival[i])
+        if data.dwell_width is not None:
+            # the run's own shear band sets how long its grains stay in view
+            seen = lagged(seen, survival(case, data.maps[i], data.dwell_width))
         out.append(moving_average(seen, data.maps[i].smoothing_frames, axis=0))
     return out
 
