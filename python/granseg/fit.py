@@ -8,6 +8,10 @@
 * :func:`fit_tau` fits the exponential law
   ``tau(delta_R) = tau_1 exp(-lambda (delta_R - 1))`` (``tau_1`` [s], ``lambda`` [-]).
 * :func:`fit_campaign` does all three for the maps of a campaign.
+* :func:`fit_shear_band` fits a measured velocity profile with MODEL.md's
+  ``v(z) = v1 + (v0 - v1) exp(-z / delta)`` (``v0``, ``v1`` [m/s], ``delta_over_H`` [-]).
+* :func:`fit_shear_band_law` fits ``delta/H = (delta/H)_ref (M~ / M~_ref)^(-exponent)``
+  over several beds: the diagnosis' ``load_dependent_shear_band`` law, so the two compare.
 
 Each returns a :class:`FitResult` with the parameters, their standard errors
 and 95 % intervals (``uncertainty``, from the fitting layer's one
@@ -32,7 +36,10 @@ Errors:
   (benches/bench_fit_coverage.py, benches/results/fit_coverage.md).
 * :func:`fit_beta` and :func:`fit_tau` fit one point per experiment, taken
   as independent: the classical s^2 (J'J)^-1 with t on m - p degrees of
-  freedom (method ``"jacobian"``).
+  freedom (method ``"jacobian"``). So do :func:`fit_shear_band` (one point per
+  layer, each weighted by its stated error) and :func:`fit_shear_band_law` (one
+  point per bed): s^2 scales the stated errors, so errors stated too small or
+  too large do not carry into the parameters' errors.
 
 Example::
 
@@ -68,11 +75,17 @@ __all__ = [
     "fit_beta",
     "fit_tau",
     "fit_campaign",
+    "shear_band_velocity",
+    "fit_shear_band",
+    "fit_shear_band_law",
     "covariance",
     "weighted_covariance",
     "residual_correlation_length",
 ]
 
+#: Reference normalised load M~ = M_w / M_g [-] of the shear-band laws (:func:`shear_band_law`, the
+#: diagnosis' load-dependent causes; the paper's three calibration cases sit at 0.41-0.54).
+M_TILDE_REF = 0.5
 TANH_TO_88 = float(np.tanh(1.0))  # f(tau) = A/2 (1 + tanh 1) = 0.8808 A
 #: A tanh fit's time blocks are this many residual correlation lengths long [-].
 BLOCK_CORRELATION_LENGTHS = 6
@@ -104,6 +117,17 @@ def beta_law(delta_R: Any, beta: float) -> np.ndarray:
 def tau_law(delta_R: Any, tau_1: float, lam: float) -> np.ndarray:
     """Exponential law tau(delta_R) = tau_1 exp(-lam (delta_R - 1)) [s]."""
     return tau_1 * np.exp(-lam * (np.asarray(delta_R, dtype=float) - 1.0))
+
+
+def shear_band_velocity(z: Any, v0: float, v1: float, delta: float) -> np.ndarray:
+    """MODEL.md's velocity profile v(z) = v1 + (v0 - v1) exp(-z / delta) [m/s] at heights ``z`` [m]."""
+    return v1 + (v0 - v1) * np.exp(-np.asarray(z, dtype=float) / delta)
+
+
+def shear_band_law(M_tilde: Any, delta_over_H_ref: float, exponent: float) -> np.ndarray:
+    """delta/H [-] against the normalised load M~ = M_w / M_g [-], the form of the diagnosis'
+    ``load_dependent_shear_band`` law (reference load :data:`M_TILDE_REF`)."""
+    return delta_over_H_ref * (np.asarray(M_tilde, dtype=float) / M_TILDE_REF) ** (-exponent)
 
 
 # --------------------------------------------------------------------------- result
@@ -402,6 +426,80 @@ def fit_tau(delta_R: Any, tau: Any, *, max_nfev: int | None = None) -> FitResult
     bounds = ([0.0, -50.0], [np.inf, 50.0])
     res, converged, message = _solve(lambda p: tau_law(x, p[0], p[1]) - y, p0, bounds, max_nfev)
     return _independent("tau", ("tau_1", "lam"), res, converged, message, bounds)
+
+
+def _finite_weighted(x: Any, y: Any, err: Any, what: str, min_points: int
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The finite (x, y) points and their weights 1 / err (None: equal weights); every stated
+    error must be finite and > 0."""
+    x = np.asarray(x, dtype=float).ravel()
+    y = np.asarray(y, dtype=float).ravel()
+    e = np.ones_like(y) if err is None else np.asarray(err, dtype=float).ravel()
+    if e.size == 1:
+        e = np.full_like(y, float(e[0]))
+    if e.shape != y.shape:
+        raise ValueError(f"{what}: {e.size} stated errors for {y.size} points")
+    keep = np.isfinite(x) & np.isfinite(y)
+    if not np.all(np.isfinite(e[keep]) & (e[keep] > 0)):
+        raise ValueError(f"{what}: every stated error must be finite and > 0")
+    xs, ys = _finite_xy(x, y, what, min_points)
+    return xs, ys, 1.0 / e[keep]
+
+
+def fit_shear_band(z: Any, v: Any, v_err: Any = None, *, H: float, v1: float | None = None,
+                   max_nfev: int | None = None) -> FitResult:
+    """Fit a velocity profile ``v`` [m/s] at heights ``z`` [m] above the plate with
+    :func:`shear_band_velocity`; ``H`` [m] is the bed height delta is scaled by.
+
+    Returns ``v0``, ``v1`` [m/s] and ``delta_over_H`` [-] with standard errors and 95 %
+    intervals (points weighted by ``v_err`` [m/s], classical errors, t on m - p degrees of
+    freedom). ``v1`` given: the lid's speed is held there and only v0 and delta/H are fitted.
+    """
+    x, y, w = _finite_weighted(z, v, v_err, "fit_shear_band", 3 if v1 is None else 2)
+    if not H > 0:
+        raise ValueError(f"fit_shear_band: H = {H!r} m: the bed height must be > 0")
+    if np.ptp(x) <= 0:
+        raise FitError("fit_shear_band: every point is at one height; delta is undetermined")
+    free_v1 = v1 is None
+    lo_z, hi_z = x[np.argmin(x)], x[np.argmax(x)]
+    v0_start, top = float(y[x == lo_z].mean()), float(y[x == hi_z].mean())
+    start_v1 = top if free_v1 else float(v1)
+    span = abs(v0_start - start_v1) or float(np.abs(y).max()) or 1.0
+
+    def unpack(p: np.ndarray) -> tuple[float, float, float]:
+        return (p[0], p[1], p[2]) if free_v1 else (p[0], float(v1), p[1])
+
+    def resid(p: np.ndarray) -> np.ndarray:
+        a, b, dh = unpack(p)
+        return w * (shear_band_velocity(x, a, b, dh * H) - y)
+
+    p0 = [v0_start, start_v1, 0.2] if free_v1 else [v0_start, 0.2]
+    vmax = 10 * (float(np.abs(y).max()) + span)
+    lower = [-vmax, -vmax, 1e-3] if free_v1 else [-vmax, 1e-3]
+    upper = [vmax, vmax, 10.0] if free_v1 else [vmax, 10.0]
+    names = ("v0", "v1", "delta_over_H") if free_v1 else ("v0", "delta_over_H")
+    res, converged, message = _solve(resid, np.array(p0), (lower, upper), max_nfev)
+    return _independent("shear_band", names, res, converged, message, (lower, upper))
+
+
+def fit_shear_band_law(M_tilde: Any, delta_over_H: Any, delta_over_H_err: Any = None, *,
+                       max_nfev: int | None = None) -> FitResult:
+    """Fit :func:`shear_band_law` to the decay lengths ``delta_over_H`` [-] of beds under the
+    normalised loads ``M_tilde`` [-] (weighted by ``delta_over_H_err``).
+
+    Returns ``delta_over_H_ref`` [-] (at M~ = :data:`M_TILDE_REF`) and ``exponent`` [-] with
+    standard errors and 95 % intervals (beds independent, t on m - 2 degrees of freedom).
+    """
+    x, y, w = _finite_weighted(M_tilde, delta_over_H, delta_over_H_err, "fit_shear_band_law", 3)
+    if np.any(x <= 0) or np.any(y <= 0):
+        raise ValueError("fit_shear_band_law: M_tilde and delta_over_H must be > 0")
+    if np.ptp(x) <= 0:
+        raise FitError("fit_shear_band_law: every bed has the same M~; the exponent is undetermined")
+    slope, icpt = np.polyfit(np.log(x / M_TILDE_REF), np.log(y), 1)
+    p0 = np.array([np.exp(icpt), -slope])
+    bounds = ([0.0, -20.0], [10.0, 20.0])
+    res, converged, message = _solve(lambda p: w * (shear_band_law(x, p[0], p[1]) - y), p0, bounds, max_nfev)
+    return _independent("shear_band_law", ("delta_over_H_ref", "exponent"), res, converged, message, bounds)
 
 
 @dataclass(frozen=True)

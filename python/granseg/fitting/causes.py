@@ -20,6 +20,7 @@ from collections.abc import Mapping, Sequence
 
 import numpy as np
 
+from granseg.fit import M_TILDE_REF
 from granseg.fitting.effects import REGISTRY, Baseline, Effect, ExpInfo, Param, plus_minus, register
 from granseg.model import defaults
 
@@ -40,9 +41,6 @@ __all__ = [
     "sidewall_view",
 ]
 
-#: Reference normalised load M~ = M_w / M_g [-] of the laws below (the paper's
-#: three calibration cases sit at 0.41-0.54).
-M_TILDE_REF = 0.5
 #: The diffusion constant b [-] of MODEL.md (the core's default, from the literature).
 B_LITERATURE = defaults()["b"]
 #: Relative surface roughness of each material [-] (how a hidden material_friction

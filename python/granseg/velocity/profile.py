@@ -1,0 +1,129 @@
+"""A measured streamwise velocity profile and its shear-band fit: what ``granseg velocity``
+writes, what a DEM run's dumps give, and what ``--velocity`` reads back.
+
+The profile is one value per one-diameter layer: heights ``z`` [m] above the
+plate, mean streamwise speed ``v`` [m/s] at the outer wall (or in the bulk, for
+a DEM run) and its standard error ``v_err``. The fit is MODEL.md's
+v(z) = v1 + (v0 - v1) exp(-z / delta) (:func:`granseg.fit.fit_shear_band`).
+
+JSON (``to_dict`` / :func:`load_profile`)::
+
+    {"delta_over_H": 0.18, "delta_over_H_stderr": 0.004, "v0": 0.233, "v0_stderr": ...,
+     "v1": 0.0, "v1_stderr": ..., "H": 0.09,
+     "profile": {"z": [...], "v": [...], "v_err": [...], "n": [...]},
+     "fit": {...the intervals...}, "conditions": {"name": ..., "M_g": ..., "M_w": ...},
+     "sources": [...], "notes": [...the measurement's...], "fit_notes": [...the fit's...]}
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from granseg._io import save_json
+from granseg.errors import MapFormatError
+from granseg.fit import FitResult, fit_shear_band
+
+__all__ = ["VelocityProfile", "load_profile"]
+
+
+@dataclass(frozen=True, eq=False)
+class VelocityProfile:
+    """One bed's measured profile (SI units) and its shear-band fit.
+
+    ``n`` counts the displacements (or grains) behind each layer's value; ``conditions``
+    holds what identifies the bed (name, heavy, light, M_g, M_w, ...: a
+    :class:`granseg.maps.Conditions`' fields, those known); ``sources`` the recordings or
+    dumps it came from; ``notes`` what a reader must know (layers left out, a poor fit).
+    """
+
+    z: np.ndarray
+    v: np.ndarray
+    v_err: np.ndarray
+    H: float
+    fit: FitResult
+    n: np.ndarray | None = None
+    conditions: Mapping[str, Any] = field(default_factory=dict)
+    sources: Sequence[str] = ()
+    notes: Sequence[str] = ()
+
+    @classmethod
+    def fitted(cls, z: Any, v: Any, v_err: Any, H: float, **kw: Any) -> VelocityProfile:
+        """The profile with its fit (layers without a value, NaN, are kept and skipped by the fit)."""
+        z, v, v_err = (np.asarray(a, dtype=float).ravel() for a in (z, v, v_err))
+        ok = np.isfinite(v) & np.isfinite(v_err)
+        return cls(z, v, v_err, float(H), fit_shear_band(z[ok], v[ok], v_err[ok], H=H), **kw)
+
+    @property
+    def delta_over_H(self) -> float:
+        return self.fit.params["delta_over_H"]
+
+    @property
+    def fit_notes(self) -> list[str]:
+        """What the fit says of itself (not converged, an interval cut by a bound)."""
+        out = [] if self.fit.converged else [f"the shear-band fit did not converge: {self.fit.message}"]
+        return out + (self.fit.uncertainty.warnings() if self.fit.uncertainty is not None else [])
+
+    @property
+    def M_tilde(self) -> float | None:
+        """Normalised load M~ = M_w / M_g [-] when the conditions give both."""
+        c = self.conditions
+        return float(c["M_w"]) / float(c["M_g"]) if "M_w" in c and "M_g" in c else None
+
+    def to_dict(self) -> dict[str, Any]:
+        p, e = self.fit.params, self.fit.stderr
+        out: dict[str, Any] = {}
+        for name in ("delta_over_H", "v0", "v1"):
+            out[name] = p.get(name, self.conditions.get(name))
+            out[f"{name}_stderr"] = e.get(name)
+        out.update({
+            "H": self.H,
+            "profile": {"z": self.z.tolist(), "v": self.v.tolist(), "v_err": self.v_err.tolist(),
+                        **({"n": np.asarray(self.n).tolist()} if self.n is not None else {})},
+            "fit": self.fit.uncertainty.to_dict() if self.fit.uncertainty is not None else None,
+            "rms_residual_in_errors": float(np.sqrt(self.fit.mse)),
+            "conditions": dict(self.conditions),
+            "sources": list(self.sources),
+            "notes": list(self.notes),
+            "fit_notes": self.fit_notes,
+        })
+        return out
+
+    def save(self, path: str | os.PathLike, force: bool = False) -> Path:
+        """Write the JSON atomically (an existing file is kept unless ``force``)."""
+        return save_json(path, self.to_dict(), force=force)
+
+
+def load_profile(path: str | os.PathLike) -> VelocityProfile:
+    """Read a profile JSON written by :meth:`VelocityProfile.save` and refit it, so the numbers
+    used are those of the data in the file; a file without the keys raises
+    :class:`granseg.MapFormatError` naming the file and the key."""
+    path = Path(path)
+    try:
+        raw = json.loads(path.read_text())
+    except (OSError, json.JSONDecodeError) as exc:
+        raise MapFormatError(f"{path}: cannot read a velocity profile ({exc})") from None
+    prof = raw.get("profile") if isinstance(raw, dict) else None
+    if not isinstance(prof, dict):
+        raise MapFormatError(f"{path}: 'profile': missing (expected z, v, v_err lists)")
+    arrays = {}
+    for key in ("z", "v", "v_err"):
+        try:
+            arrays[key] = np.asarray([np.nan if x is None else x for x in prof[key]], dtype=float)
+        except (KeyError, TypeError, ValueError):
+            raise MapFormatError(f"{path}: 'profile.{key}': missing or not a list of numbers") from None
+    if not (arrays["z"].shape == arrays["v"].shape == arrays["v_err"].shape) or arrays["z"].size < 3:
+        raise MapFormatError(f"{path}: 'profile': z, v and v_err need the same length, at least 3")
+    H = raw.get("H")
+    if not isinstance(H, (int, float)) or not H > 0:
+        raise MapFormatError(f"{path}: 'H': the bed height [m] must be a number > 0, got {H!r}")
+    return VelocityProfile.fitted(arrays["z"], arrays["v"], arrays["v_err"], float(H),
+                                  n=np.asarray(prof["n"]) if prof.get("n") is not None else None,
+                                  conditions=raw.get("conditions") or {}, sources=raw.get("sources") or [],
+                                  notes=raw.get("notes") or [])
