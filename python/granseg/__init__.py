@@ -10,6 +10,7 @@ The public API, chosen rather than whatever is importable::
     granseg.load_campaign(dir)   every map of a campaign directory
     granseg.calibrate(...)       factorial design + refinement of (k, delta/H)
     granseg.diagnose(...)        what the model gets wrong, and why
+    granseg.measure_velocity(...) high-speed footage -> velocity profile and shear band
     granseg.fit, granseg.synth   curve fits; synthetic frames and campaigns
 
 SI units throughout (m, s, kg, Pa). Names are imported lazily so that the
@@ -42,6 +43,8 @@ _LAZY: dict[str, tuple[str, str | None]] = {
     "Map": ("granseg.maps", "Map"),
     "calibrate": ("granseg.calibration", "calibrate"),
     "diagnose": ("granseg.diagnosis", "diagnose"),
+    "measure_velocity": ("granseg.velocity", "measure_velocity"),
+    "load_velocity": ("granseg.velocity", "load_velocity"),
     "fit": ("granseg.fit", None),
     "synth": ("granseg.synth", None),
     "plot": ("granseg.plot", None),

@@ -287,6 +287,7 @@ def calibrate(
     max_nfev: int = 40,
     errors: str = DEFAULT_ERRORS,
     view_dwell: bool = True,
+    velocity: Any = None,
     client: Any = None,
     progress: bool = True,
     accept_flagged: bool = False,
@@ -314,6 +315,11 @@ def calibrate(
         :data:`granseg.fitting.solve.ERROR_METHODS` (see :mod:`granseg.fitting.uncertainty`).
     view_dwell : measure the dwell of grains in view from the counts and model it
         (:mod:`granseg.fitting.dwell`); False compares the bed's share directly.
+    velocity : a measured shear band in place of fitting delta/H: a ``granseg velocity``
+        profile or ``granseg velocity-law`` law (path, or the loaded
+        :class:`granseg.velocity.VelocityProfile` / :class:`~granseg.velocity.ShearBandLaw`).
+        A profile fixes delta/H (and v1 where its fit freed it) for every experiment, a law
+        fixes delta/H at each experiment's M~; the default grid is then ``k`` alone.
     client : a ``dask.distributed.Client``; passed to ``granseg.sweep``.
     progress : print a counted line per sweep to stderr.
     accept_flagged : use maps that failed their frame-analysis quality checks
@@ -324,11 +330,17 @@ def calibrate(
         raise ValueError(f"errors = {errors!r}: choose one of {', '.join(ERRORS)}")
     maps = as_maps(campaign)
     check_accepted(maps, accept_flagged)
-    grid = check_grid(grid, list(defaults()))
+    measured = _measured_velocity(velocity, maps, grid)
+    grid = check_grid({"k": DEFAULT_GRID["k"]} if measured and grid is None else grid, list(defaults()))
     keys = list(grid)
     bnds = _bounds_arrays(keys, bounds, grid)
     log = _printer(progress)
     data = Data.of(maps, dict(n_cells=n_cells, rtol=rtol, atol=atol, client=client), dict(base or {}), log)
+    if measured:
+        data.measured = measured["params"]
+        log(f"shear band measured ({measured['source']}): delta/H = "
+            + ", ".join(f"{p['delta_over_H']:.3f}" for p in measured["params"][:4])
+            + (" ..." if data.n > 4 else "") + " (not fitted)")
     if view_dwell:
         _with_dwell(data)
     n_runs = len(maps) * math.prod(len(v) for v in grid.values())
@@ -346,7 +358,8 @@ def calibrate(
     settings = {"grid": grid, "bounds": {p.name: [p.lo, p.hi] for p in params},
                 "base": dict(base or {}), **data.solver_settings(), "fd_rel": fd_rel, "max_nfev": max_nfev,
                 "errors": f.error_method, "n_sweeps": data.n_sweeps, "n_runs": data.n_runs,
-                "confusion": data.confusion_record, "dwell": data.dwell_record}
+                "confusion": data.confusion_record, "dwell": data.dwell_record,
+                "velocity": measured or None}
     cal = Calibration(
         names=data.names, keys=keys, grid_points=points, grid_rmsd=table,
         best=f.values(), stderr=f.errors(), rmsd=dict(zip(data.names, map(float, f.rmsd), strict=True)),
@@ -364,6 +377,22 @@ def calibrate(
                       CalibrationWarning, stacklevel=2)
     log(f"done: {data.n_runs} runs in {data.n_sweeps} sweeps, {cal.elapsed:.1f} s")
     return cal
+
+
+def _measured_velocity(velocity: Any, maps: Sequence[Map], grid: Mapping[str, Any] | None) -> dict[str, Any]:
+    """The model parameters a measured shear band fixes per map ({} without one); a grid that
+    would fit them too is refused."""
+    if velocity is None:
+        return {}
+    from granseg.velocity import ShearBandLaw, VelocityProfile, load_velocity, measured_params
+
+    v = velocity if isinstance(velocity, (VelocityProfile, ShearBandLaw)) else load_velocity(velocity)
+    params = measured_params(v, [m.M_tilde for m in maps])
+    clash = sorted(set(params[0]) & set(grid or {}))
+    if clash:
+        raise ValueError(f"grid: {', '.join(clash)} measured by the velocity file; leave it out of the grid")
+    source = str(velocity) if not isinstance(velocity, (VelocityProfile, ShearBandLaw)) else type(v).__name__
+    return {"source": source, "params": params}
 
 
 def _usable(errors: str, n_experiments: int, log: Callable[[str], None]) -> str:

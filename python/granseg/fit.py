@@ -38,8 +38,8 @@ Errors:
   as independent: the classical s^2 (J'J)^-1 with t on m - p degrees of
   freedom (method ``"jacobian"``). So do :func:`fit_shear_band` (one point per
   layer, each weighted by its stated error) and :func:`fit_shear_band_law` (one
-  point per bed): s^2 scales the stated errors, so errors stated too small or
-  too large do not carry into the parameters' errors.
+  point per bed), where s^2 (the residuals in stated errors) scales the errors up when
+  the points scatter beyond their stated errors and never down.
 
 Example::
 
@@ -241,12 +241,19 @@ def _result(model: str, res: Any, converged: bool, message: str, u: Uncertainty)
 
 
 def _independent(model: str, names: tuple[str, ...], res: Any, converged: bool, message: str,
-                 bounds: tuple[Any, Any]) -> FitResult:
-    """A fit to independent points: classical errors, t on m - p degrees of freedom."""
+                 bounds: tuple[Any, Any], stated_errors: bool = False) -> FitResult:
+    """A fit to independent points: classical errors, t on m - p degrees of freedom.
+
+    With ``stated_errors`` the residuals are in units of the points' own errors: s^2 then
+    only scales the covariance up (a scatter beyond the stated errors), never down (a fit
+    closer than its errors, on few points, is luck, not precision)."""
     from granseg.fitting.uncertainty import describe
 
     p = len(names)
     cov = covariance(res.jac, res.fun, p)
+    if stated_errors and res.fun.size > p:
+        s2 = float(res.fun @ res.fun) / (res.fun.size - p)
+        cov = cov * max(1.0, s2) / s2 if s2 > 0 else np.linalg.pinv(res.jac.T @ res.jac)
     lo, hi = (np.broadcast_to(np.asarray(b, dtype=float), (p,)) for b in bounds)
     u = describe("jacobian", names, res.x, cov, None, (lo, hi), dof=res.fun.size - p)
     return _result(model, res, converged, message, u)
@@ -479,7 +486,7 @@ def fit_shear_band(z: Any, v: Any, v_err: Any = None, *, H: float, v1: float | N
     upper = [vmax, vmax, 10.0] if free_v1 else [vmax, 10.0]
     names = ("v0", "v1", "delta_over_H") if free_v1 else ("v0", "delta_over_H")
     res, converged, message = _solve(resid, np.array(p0), (lower, upper), max_nfev)
-    return _independent("shear_band", names, res, converged, message, (lower, upper))
+    return _independent("shear_band", names, res, converged, message, (lower, upper), v_err is not None)
 
 
 def fit_shear_band_law(M_tilde: Any, delta_over_H: Any, delta_over_H_err: Any = None, *,
@@ -499,7 +506,8 @@ def fit_shear_band_law(M_tilde: Any, delta_over_H: Any, delta_over_H_err: Any = 
     p0 = np.array([np.exp(icpt), -slope])
     bounds = ([0.0, -20.0], [10.0, 20.0])
     res, converged, message = _solve(lambda p: w * (shear_band_law(x, p[0], p[1]) - y), p0, bounds, max_nfev)
-    return _independent("shear_band_law", ("delta_over_H_ref", "exponent"), res, converged, message, bounds)
+    return _independent("shear_band_law", ("delta_over_H_ref", "exponent"), res, converged, message, bounds,
+                        delta_over_H_err is not None)
 
 
 @dataclass(frozen=True)

@@ -67,6 +67,9 @@ def add_calibration_options(p: argparse.ArgumentParser) -> None:
                    help="dask scheduler address ('local' starts a threaded LocalCluster)")
     p.add_argument("--accept-flagged", action="store_true",
                    help="use maps that failed their frame-analysis quality checks (refused by default)")
+    p.add_argument("--velocity", metavar="V.json", default=None,
+                   help="a measured shear band in place of fitting delta/H: a `granseg velocity` profile or a "
+                        "`granseg velocity-law --json` law")
     p.add_argument("--no-dwell", action="store_true",
                    help="compare the model with the maps as they are, without the view's dwell (the lag "
                         "of grains staying in view, measured from the counts; on by default)")
@@ -77,7 +80,8 @@ def calibration_kwargs(args: argparse.Namespace) -> dict[str, Any]:
     return dict(grid=parse_grid(args.grid), bounds=parse_bounds(args.bounds),
                 refine=not args.no_refine, per_experiment=args.per_experiment,
                 n_cells=args.n_cells, rtol=args.rtol, max_nfev=args.max_nfev,
-                errors=args.errors, accept_flagged=args.accept_flagged, view_dwell=not args.no_dwell)
+                errors=args.errors, accept_flagged=args.accept_flagged, view_dwell=not args.no_dwell,
+                velocity=args.velocity)
 
 
 @contextlib.contextmanager

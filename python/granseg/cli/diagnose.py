@@ -28,6 +28,9 @@ def register(subparsers: Any) -> None:
     p.add_argument("--force", action="store_true", help="replace existing output files")
     p.add_argument("--accept-flagged", action="store_true",
                    help="use maps that failed their frame-analysis quality checks (refused by default)")
+    p.add_argument("--velocity", metavar="V.json",
+                   help="a shear band measured from footage (`granseg velocity` profile or `velocity-law` "
+                        "law): the diagnosis still fits delta/H from the maps and says whether the two agree")
     p.add_argument("--quiet", action="store_true", help="no progress log")
     p.set_defaults(func=run)
 
@@ -41,13 +44,16 @@ def run(args: argparse.Namespace) -> int:
 
     d = diagnose(args.campaign, json=args.json, report=args.report, force=args.force,
                  causes=args.causes, n_cells=args.n_cells, progress=not args.quiet,
-                 accept_flagged=args.accept_flagged)
+                 accept_flagged=args.accept_flagged, velocity=args.velocity)
     r = d.result
     print(f"cause: {r['cause']}  (explained: {str(r['explained']).lower()})")
     print(r["summary"])
     g = r["gain"]
     print(f"noise floor {r['noise_floor']:.4f}; mean RMSD baseline {r['baseline']['rmsd_mean']:.4f}; "
           f"gain in sample {g['rmsd_in_sample']:+.4f}, held out {g['rmsd_held_out']:+.4f}")
+    for p in (r.get("velocity_check") or {}).get("pairs", []):
+        print(f"shear band, maps against footage: {p['parameter']} {p['fitted']:.3f} vs measured "
+              f"{p['measured']:.3f}: {'agree' if p['agrees'] else 'DISAGREE'}")
     if args.report:
         print(f"report: {r.get('report')}")
     return 0

@@ -26,6 +26,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--c0", type=float, default=0.5, help="overall heavy fraction (default 0.5)")
     p.add_argument("--k", type=float, help="friction correction k (default 0.70)")
     p.add_argument("--delta-over-H", type=float, dest="delta_over_H", help="shear band delta/H (default 0.18)")
+    p.add_argument("--velocity", metavar="V.json",
+                   help="measured shear band in place of --delta-over-H: a `granseg velocity` profile, or a "
+                        "`granseg velocity-law` law (then give --M-g)")
+    p.add_argument("--M-g", dest="M_g", type=float, help="grain mass, kg (for a velocity law's M~ = M_w / M_g)")
     p.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
                    help="any other model parameter, e.g. --set b=0.05 (repeatable)")
     p.add_argument("--t-end", type=float, default=3600.0, help="end time, s (default 3600)")
@@ -64,6 +68,20 @@ def _extra(pairs: list[str]) -> dict[str, float]:
     return out
 
 
+def _measured(args: argparse.Namespace, params: dict[str, float]) -> dict[str, float]:
+    """delta/H (and v1) from a ``--velocity`` file; a law needs the bed's M~ = M_w / M_g."""
+    from granseg.model import defaults
+    from granseg.velocity import ShearBandLaw, load_velocity, measured_params
+
+    if args.delta_over_H is not None:
+        raise ValueError("--velocity and --delta-over-H: give one (the velocity file measures delta/H)")
+    v = load_velocity(args.velocity)
+    if isinstance(v, ShearBandLaw) and not (args.M_g and args.M_g > 0):
+        raise ValueError("--velocity: a shear-band law needs the bed's grain mass --M-g (kg) > 0")
+    m_tilde = params.get("M_w", defaults()["M_w"]) / args.M_g if args.M_g else float("nan")
+    return measured_params(v, [m_tilde])[0]
+
+
 def run(args: argparse.Namespace) -> int:
     import granseg
     from granseg import fit, plot
@@ -74,6 +92,8 @@ def run(args: argparse.Namespace) -> int:
         if getattr(args, key) is not None:
             params[key] = getattr(args, key)
     params.update(_extra(args.set))
+    if args.velocity:
+        params.update(_measured(args, params))
     if not (args.t_end > 0 and args.dt > 0):
         raise ValueError("--t-end and --dt must be > 0 s")
     t = np.arange(0.0, args.t_end + 0.5 * args.dt, args.dt)

@@ -124,6 +124,7 @@ class DiagnosisJSON(TypedDict, total=False):
     evidence: dict[str, Any]
     departure: DepartureJSON | None
     open_world: dict[str, Any] | None
+    velocity_check: dict[str, Any] | None
     experiments: list[dict[str, Any]]
     settings: dict[str, Any]
     report: str
@@ -272,6 +273,8 @@ def build_result(d: Diagnosis) -> DiagnosisJSON:
                   "n_model_runs": d.data.n_runs, "n_sweeps": d.data.n_sweeps,
                   "sweep_seconds": d.data.sweep_seconds, "elapsed_s": d.timing.get("total")},
     )
+    if d.velocity_check is not None:
+        out["velocity_check"] = d.velocity_check
     if d.report_path is not None:
         out["report"] = d.report_path
     return out

@@ -61,6 +61,8 @@ class Diagnosis:
     report_path: str | None = None
     #: the law corrections tried when the catalogue left a structured misfit (None: not needed or disabled)
     open_world: OpenWorld | None = None
+    #: the fitted shear band against the measured one (None: no measurement given)
+    velocity_check: dict[str, Any] | None = None
 
     @property
     def cause(self) -> str:
@@ -123,6 +125,7 @@ def diagnose(
     progress: bool = True,
     accept_flagged: bool = False,
     open_world: bool = True,
+    velocity: Any = None,
 ) -> Diagnosis:
     """Find what the baseline model gets wrong on a campaign, name the cause, measure the gain.
 
@@ -150,6 +153,10 @@ def diagnose(
     open_world : when the catalogue leaves a structured misfit, fit a smooth
         correction of each law of the model (:mod:`granseg.fitting.laws`) and
         name the one that explains it (``new_law``, JSON ``departure``).
+    velocity : a shear band measured from footage (a ``granseg velocity`` profile or
+        ``velocity-law`` law, path or loaded): the diagnosis still fits delta/H from the maps
+        and reports whether the two agree (JSON ``velocity_check``,
+        :mod:`granseg.diagnosis.velocity_check`).
     """
     t_start = time.perf_counter()
     if json is not None:
@@ -194,15 +201,32 @@ def diagnose(
                                    lambda name: misfit_of(ow.fits[name]), gain_threshold=gain_threshold)
         timing["open_world"] = ow.seconds
     verdict = selection.settle(verdict)
+    check = _velocity_check(velocity, base, fits.get("load_dependent_shear_band"), log)
     timing["total"] = time.perf_counter() - t_start
     log(f"verdict: {verdict.cause} ({verdict.reason}); {data.n_runs} model runs in "
         f"{data.n_sweeps} sweeps, {timing['total']:.1f} s")
     diag = Diagnosis(maps, data, calibration, base, fits, held, held_layers, gains, floor, noise, ev, verdict,
                      {"gain": float(gain_threshold), "excess": float(excess_threshold),
                       "coherence_alpha": float(coherence_alpha), "coherence_share": float(coherence_share)},
-                     timing, open_world=ow)
+                     timing, open_world=ow, velocity_check=check)
     _write_outputs(diag, json, report, force, log)
     return diag
+
+
+def _velocity_check(velocity: Any, base: Fit, load_fit: Fit | None, log: Callable[[str], None]
+                    ) -> dict[str, Any] | None:
+    if velocity is None:
+        return None
+    from granseg.diagnosis.velocity_check import compare
+    from granseg.velocity import ShearBandLaw, VelocityProfile, load_velocity
+
+    v = velocity if isinstance(velocity, (VelocityProfile, ShearBandLaw)) else load_velocity(velocity)
+    law = (load_fit.values(), load_fit.errors()) if load_fit is not None else None
+    check = compare(v, (base.values(), base.errors()), law)
+    for p in check["pairs"]:
+        log(f"shear band, maps against footage: {p['parameter']} {p['fitted']:.3f} vs {p['measured']:.3f} "
+            f"({'agree' if p['agrees'] else 'disagree'}, z = {p['z'] if p['z'] is None else round(p['z'], 1)})")
+    return check
 
 
 def _write_outputs(diag: Diagnosis, json: Any, report: Any, force: bool, log: Callable[[str], None]) -> None:

@@ -69,6 +69,9 @@ class Data:
     dwell_width: float | None = None
     #: the dwell measurement (JSON-ready), None: not measured
     dwell_record: dict[str, Any] | None = None
+    #: model parameters measured per experiment (e.g. delta/H from a velocity profile); they
+    #: override what the fitted effect gives, None: nothing measured
+    measured: list[dict[str, float]] | None = None
     n_runs: int = 0
     n_sweeps: int = 0
     sweep_seconds: float = 0.0
@@ -126,7 +129,7 @@ def model_maps(data: Data, effect: Effect, runs: Sequence[tuple[Mapping[str, flo
     for x, i in runs:
         exp = data.exps[i]
         request, index = shifted_times(data.maps[i].t, effect.time_shift(x, exp))
-        cases.append({**data.fixed, **effect.solver_params(x, exp)})
+        cases.append({**data.fixed, **effect.solver_params(x, exp), **(data.measured[i] if data.measured else {})})
         times.append(request)
         rows.append(index)
     t0 = time.perf_counter()

@@ -41,7 +41,7 @@ from granseg.measure.quality import Quality, QualityWarning, assess
 from granseg.measure.sources import BadFrame, FrameDirectory, VideoFrames, open_frames
 from granseg.measure.wall import remove_wall_glare
 
-__all__ = ["Analysis", "BadFrameWarning", "FrameSpheres", "analyze", "write_detections"]
+__all__ = ["Analysis", "BadFrameWarning", "Detected", "FrameSpheres", "analyze", "detect_frames", "write_detections"]
 
 log = logging.getLogger(__name__)
 
@@ -175,6 +175,32 @@ def analyze(
     if preview is not None:
         result.previews = write_previews(Path(preview), result, crops, force)
     return result
+
+
+@dataclass
+class Detected:
+    """The spheres of every frame of a recording, without their classes (:func:`detect_frames`).
+
+    spheres: per frame, FrameSpheres (centres in undistorted px) or None for a bad frame;
+    names: the frames' names; fps [1/s]; bad_frames: (name, problem) of the frames left out.
+    """
+
+    experiment: Experiment
+    fps: float
+    spheres: list[FrameSpheres | None]
+    names: list[str]
+    bad_frames: list[tuple[str, str]]
+
+
+def detect_frames(path: str | os.PathLike, *, workers: int | None = None, progress: bool = True) -> Detected:
+    """Find the spheres of every frame of ``path`` (frames directory or video with
+    ``experiment.json``), as :func:`analyze` does, without telling the two kinds apart:
+    what a velocity measurement needs (:mod:`granseg.velocity`)."""
+    source, exp_path = open_frames(path)
+    exp = load_experiment(exp_path)
+    fps = _frame_rate(exp, source)
+    spheres, _, bad, names = _detect_all(source, exp, workers, progress, set())
+    return Detected(exp, fps, spheres, names, bad)
 
 
 def _frame_rate(exp: Experiment, source: FrameDirectory | VideoFrames) -> float:

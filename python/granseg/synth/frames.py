@@ -171,6 +171,8 @@ def render_frames(
     dust: int = 0,
     video: str | None = None,
     video_bitrate: float | None = None,
+    lid_slip: float = 0.0,
+    exact_speeds: bool = False,
 ) -> RenderedFrames:
     """Render frames whose per-layer heavy share follows the map ``c``.
 
@@ -240,11 +242,19 @@ def render_frames(
         (h264) 0.25 bit per pixel and frame, where compression artefacts
         show. With "mp4v" a bitrate needs PyAV (its MPEG-4 Part 2 encoder).
 
+    lid_slip : the lid's speed over the plate's, v1 / v0 (rows move by
+        ``bottom_shift_px * (lid_slip + (1 - lid_slip) exp(-z / delta))``).
+    exact_speeds : every half-diameter band moves exactly at the profile's
+        mean speed (the last relaxation's drift taken off): footage whose
+        velocity profile is known (:mod:`granseg.synth.highspeed`).
+
     Returns
     -------
     RenderedFrames with the images, the exact centres and the per-layer counts.
     """
     cmap = _check_map(c)
+    if not (np.isfinite(lid_slip) and 0.0 <= lid_slip < 1.0):
+        raise ValueError(f"lid_slip must be in [0, 1) (v1 / v0), got {lid_slip!r}")
     heavy_look, light_look = _look(heavy, colours), _look(light, colours)
     apparatus = _apparatus(bumps, bump_spacing, smear_diameters, wall_reflections, dust, video, video_bitrate)
     d = float(particle_diameter_px)
@@ -267,7 +277,7 @@ def render_frames(
     n = np.zeros(cmap.shape, dtype=np.int64)
     n_heavy = np.zeros(cmap.shape, dtype=np.int64)
     for i in range(cmap.shape[0]):
-        x = bed.positions(i, shift, delta_over_H)
+        x = bed.positions(i, shift, delta_over_H, lid_slip, exact_speeds)
         bed.assign_types(x, cmap[i], rng)
         ideal = scene.draw(x, bed, exposure, vignetting)
         images.append(_camera_effects(ideal, sensor_map, blur, noise, jpeg_quality, rng))
@@ -473,24 +483,38 @@ class _Bed:
             self.x0 = (self.x0 + mx) % self.length
             self.y = np.clip(self.y + my, y_lo, y_hi)
 
-    def positions(self, frame: int, shift: float, delta_over_H: float) -> np.ndarray:
-        """x [undistorted px] of every sphere at ``frame`` (frames come in order; the bed shears)."""
+    def positions(self, frame: int, shift: float, delta_over_H: float, slip: float = 0.0,
+                  exact: bool = False) -> np.ndarray:
+        """x [undistorted px] of every sphere at ``frame`` (frames come in order; the bed shears).
+
+        Each height moves by shift * (slip + (1 - slip) exp(-z / delta)) on average (``slip``:
+        the lid's speed over the plate's). The last relaxation sweeps, which remove the
+        overlaps the shear leaves, slow the fastest grains a little; ``exact`` takes their
+        drift off too, so every half-diameter band moves exactly at the profile's mean
+        speed (high-speed footage with a known profile; overlaps of a fraction of a pixel remain).
+        """
         if frame > 0:
             if self.walls is not None:
                 self.walls.advance(shift)  # the plate (and its bumps) moves by the full bottom shift
             height = self.win[3] - self.win[1]
-            profile = np.exp(-(self.win[3] - self.y) / (delta_over_H * height))
+            profile = slip + (1.0 - slip) * np.exp(-(self.win[3] - self.y) / (delta_over_H * height))
             before = self.x0 + shift * profile
             self.x0 = before % self.length
             for _ in range(3):
                 # grains make room for each other, but each height keeps its mean speed
                 self._relax(SHEAR_SWEEPS, self.rng, mobility=profile + 1e-3)
-                moved = (self.x0 - before + self.length / 2) % self.length - self.length / 2
-                band = np.clip(((self.y - self.win[1]) / (0.5 * self.d)).astype(int), 0, None)
-                mean = np.bincount(band, moved) / np.maximum(np.bincount(band), 1)
-                self.x0 = (self.x0 - mean[band]) % self.length
+                self._keep_band_means(before)
             self._relax(SHEAR_SWEEPS, self.rng, mobility=profile + 1e-3)
+            if exact:
+                self._keep_band_means(before)
         return self.x_lo + self.x0
+
+    def _keep_band_means(self, before: np.ndarray) -> None:
+        """Take off each half-diameter band's mean drift from ``before`` (the sheared positions)."""
+        moved = (self.x0 - before + self.length / 2) % self.length - self.length / 2
+        band = np.clip(((self.y - self.win[1]) / (0.5 * self.d)).astype(int), 0, None)
+        mean = np.bincount(band, moved) / np.maximum(np.bincount(band), 1)
+        self.x0 = (self.x0 - mean[band]) % self.length
 
     def in_window(self, x: np.ndarray) -> np.ndarray:
         x0, y0, x1, y1 = self.win

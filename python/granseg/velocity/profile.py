@@ -28,9 +28,9 @@ import numpy as np
 
 from granseg._io import save_json
 from granseg.errors import MapFormatError
-from granseg.fit import FitResult, fit_shear_band
+from granseg.fit import FitResult, fit_shear_band, shear_band_law
 
-__all__ = ["VelocityProfile", "load_profile"]
+__all__ = ["ShearBandLaw", "VelocityProfile", "load_profile", "load_velocity", "measured_params"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -127,3 +127,51 @@ def load_profile(path: str | os.PathLike) -> VelocityProfile:
                                   n=np.asarray(prof["n"]) if prof.get("n") is not None else None,
                                   conditions=raw.get("conditions") or {}, sources=raw.get("sources") or [],
                                   notes=raw.get("notes") or [])
+
+
+@dataclass(frozen=True)
+class ShearBandLaw:
+    """delta/H = delta_over_H_ref (M~ / 0.5)^(-exponent) measured over several beds
+    (``granseg velocity-law``), with the standard errors of both."""
+
+    delta_over_H_ref: float
+    exponent: float
+    stderr: Mapping[str, float] = field(default_factory=dict)
+    source: str = ""
+
+    def delta_over_H(self, M_tilde: float) -> float:
+        return float(shear_band_law(M_tilde, self.delta_over_H_ref, self.exponent))
+
+
+def load_velocity(path: str | os.PathLike) -> VelocityProfile | ShearBandLaw:
+    """A ``--velocity`` file: one bed's profile (``granseg velocity``) or a law over beds
+    (``granseg velocity-law --json``), told apart by their keys."""
+    path = Path(path)
+    try:
+        raw = json.loads(path.read_text())
+    except (OSError, json.JSONDecodeError) as exc:
+        raise MapFormatError(f"{path}: cannot read a velocity file ({exc})") from None
+    if isinstance(raw, dict) and "profile" in raw:
+        return load_profile(path)
+    try:
+        params = raw["params"]
+        ref, exp = float(params["delta_over_H_ref"]), float(params["exponent"])
+    except (KeyError, TypeError, ValueError):
+        raise MapFormatError(f"{path}: neither a velocity profile ('profile') nor a shear-band law "
+                             f"('params' with delta_over_H_ref and exponent)") from None
+    if not (ref > 0 and np.isfinite(exp)):
+        raise MapFormatError(f"{path}: 'params': delta_over_H_ref must be > 0 and exponent finite")
+    return ShearBandLaw(ref, exp, {k: float(v) for k, v in (raw.get("stderr") or {}).items() if v is not None},
+                        str(path))
+
+
+def measured_params(velocity: VelocityProfile | ShearBandLaw, M_tilde: Sequence[float]) -> list[dict[str, float]]:
+    """The model parameters a measurement fixes for experiments of normalised loads ``M_tilde``:
+    delta/H (a profile: its own for every experiment; a law: at each one's M~) and, for a
+    profile whose fit freed it, the lid's speed v1 [m/s]."""
+    if isinstance(velocity, ShearBandLaw):
+        return [{"delta_over_H": velocity.delta_over_H(m)} for m in M_tilde]
+    out = {"delta_over_H": velocity.delta_over_H}
+    if "v1" in velocity.fit.params:
+        out["v1"] = max(0.0, velocity.fit.params["v1"])
+    return [dict(out) for _ in M_tilde]

@@ -1,0 +1,100 @@
+"""Velocity profiles from footage (granseg.velocity.track) on rendered high-speed recordings
+whose profile is known (granseg.synth.highspeed). The method's constants were set on seeds
+1-4 at delta/H = 0.18 and 100 fps; the seeds here were not used for that."""
+
+from __future__ import annotations
+
+import json
+import warnings
+
+import numpy as np
+import pytest
+
+from granseg.synth.highspeed import render_highspeed, render_recordings
+from granseg.velocity import measure_velocity
+from granseg.velocity import track as T
+
+
+def _measure(paths):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return measure_velocity(paths, progress=False)
+
+
+def test_unrolling_the_wall_gives_arc_speeds_back():
+    """A grain moving at constant speed along a cylinder of radius R is seen at R sin(s / R):
+    unrolled, its speed is constant again; taken as seen, it is low by cos(s / R) near the sides."""
+    R, scale, window = 0.095, 1e-4, (0.0, 0.0, 540.0, 900.0)
+    s = np.linspace(-0.025, 0.025, 51)  # arc positions [m] around the window's centre
+    x_px = 270.0 + R * np.sin(s / R) / scale
+    np.testing.assert_allclose(T._unroll(x_px, window, scale, R), s, atol=1e-12)
+    flat = np.diff(T._unroll(x_px, window, scale, 0.0))
+    mid = 0.5 * (s[0] + s[1])
+    assert flat[0] / np.diff(s)[0] == pytest.approx(np.cos(mid / R), rel=1e-5)
+
+
+def _within(prof, dh):
+    est, se = prof.fit.params["delta_over_H"], prof.fit.stderr["delta_over_H"]
+    return abs(est / dh - 1) <= 0.05 and abs(est - dh) <= 3 * se, abs(est - dh) / se, abs(est / dh - 1)
+
+
+def test_shear_band_recovered_over_seeds_and_frame_rates(tmp_path):
+    """Issue 12's target over four beds (delta/H 0.12-0.30, seeds 201-204): delta/H within 5 %
+    and 3 standard errors in at least three of them (the held-out benchmark: 22 of 24), every
+    one within 3 SE and 8 %. The last bed is filmed at 24, 100 and 1000 fps: the slow camera
+    cannot follow the plate (those layers are left out, with a note), the fastest guides the
+    others' linking, and the joined profile also gives the plate's and the lid's speeds."""
+    results = []
+    for dh, seed in [(0.12, 201), (0.24, 202), (0.30, 203)]:
+        render_highspeed(tmp_path / f"rec{seed}", delta_over_H=dh, fps=100.0, n_frames=60, seed=seed)
+        prof, recs = _measure(tmp_path / f"rec{seed}")
+        assert recs[0].tracks.shape[1] == 6 and np.isfinite(prof.v).all()
+        results.append(_within(prof, dh))
+    v0, v1, dh = 0.2332, 0.012, 0.18
+    paths = render_recordings(tmp_path / "three", fps=(24.0, 100.0, 1000.0), n_frames=60, seed=204,
+                              delta_over_H=dh, v0=v0, v1=v1)
+    prof, recs = _measure(paths)
+    assert [r.fps for r in recs] == [1000.0, 100.0, 24.0]
+    assert any("24 fps: left out" in n for n in prof.notes)
+    p, e = prof.fit.params, prof.fit.stderr
+    assert abs(p["v1"] - v1) <= 3 * e["v1"] and abs(p["v0"] - v0) <= 3 * e["v0"]
+    results.append(_within(prof, dh))
+    assert sum(ok for ok, _, _ in results) >= 3, results
+    assert all(z <= 3 and rel <= 0.08 for _, z, rel in results), results
+    d = prof.to_dict()
+    assert {"delta_over_H", "delta_over_H_stderr", "v0", "v1"} <= set(d)
+    assert len(d["profile"]["z"]) == len(d["profile"]["v"]) == len(d["profile"]["v_err"]) == 15
+    json.dumps(d)
+
+
+def test_bad_recordings_are_named(tmp_path):
+    with pytest.raises(ValueError, match="no recording"):
+        measure_velocity([], progress=False)
+    (tmp_path / "empty").mkdir()
+    with pytest.raises((FileNotFoundError, ValueError), match="empty"):
+        measure_velocity(tmp_path / "empty", progress=False)
+    with pytest.raises(ValueError, match="D_p"):
+        measure_velocity(tmp_path / "empty", D_p=-1.0, progress=False)
+
+
+def test_the_law_over_beds_recovers_a_hidden_power(tmp_path, capsys):
+    """Four rendered beds under loads M~ = 0.25-1.6 whose bands follow delta/H = 0.18 (M~/0.5)^-0.4:
+    ``granseg velocity`` on each and ``granseg velocity-law`` over them give the exponent back
+    within 3 standard errors (seeds 211-214)."""
+    from granseg.cli import main
+    from granseg.fit import shear_band_law
+
+    (tmp_path / "profiles").mkdir()
+    for i, m_tilde in enumerate([0.25, 0.5, 0.9, 1.6]):
+        dh = float(shear_band_law(m_tilde, 0.18, 0.4))
+        rec = tmp_path / f"bed{i}"
+        render_highspeed(rec, delta_over_H=dh, fps=100.0, n_frames=60, seed=211 + i,
+                         experiment={"M_w": 1.093, "M_g": 1.093 / m_tilde})
+        assert main(["velocity", str(rec), "--json", str(tmp_path / "profiles" / f"bed{i}.json"),
+                     "--no-progress"]) == 0
+    assert main(["velocity-law", str(tmp_path / "profiles"), "--json", str(tmp_path / "law.json"),
+                 "--figure", str(tmp_path / "law")]) == 0
+    law = json.loads((tmp_path / "law.json").read_text())
+    exp, se = law["params"]["exponent"], law["stderr"]["exponent"]
+    assert abs(exp - 0.4) <= 3 * se and se < 0.2, (exp, se)
+    assert (tmp_path / "law.png").is_file() and "(M~/0.5)^" in capsys.readouterr().out
