@@ -61,7 +61,7 @@ def table(rows: list[dict]) -> str:
 
 def throughput(frames: int) -> None:
     with tempfile.TemporaryDirectory() as tmp:
-        render_highspeed(Path(tmp) / "big", fps=100.0, n_frames=frames, particle_diameter_px=80.0,
+        render_highspeed(Path(tmp) / "big", fps=100.0, n_frames=frames, particle_diameter_px=80.0, material="pom",
                          image_size=(1920, 1440), seed=5)
         t = time.perf_counter()
         with warnings.catch_warnings():

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import warnings
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -97,6 +98,9 @@ def test_diagnosis_checks_its_load_law_against_the_footage():
         d = diagnose(maps, causes=["load_dependent_shear_band"], velocity=true, progress=False)
     check = d.result["velocity_check"]
     assert check["measured"] == "law" and check["agrees"], check
+    from granseg.report.diagnosis import render
+
+    assert "agrees with the measured law" in render(d.result, [], Path("."))
     f = d.fits["load_dependent_shear_band"]
     wrong = compare(ShearBandLaw(0.18, -0.5, true.stderr), ({}, {}), (f.values(), f.errors()))
     assert not wrong["agrees"]

@@ -61,6 +61,7 @@ def tracks_on_frame(image: np.ndarray, tracks: np.ndarray, window: Sequence[floa
     :class:`granseg.velocity.Recording` holds them (x, y [px] in columns 4-5)."""
     with style():
         fig = new_figure(5.0, 5.0 * image.shape[0] / image.shape[1])
+        fig.set_layout_engine("none")  # the frame fills the figure
         ax = fig.add_axes((0, 0, 1, 1))
         rgb = image[..., ::-1] if image.ndim == 3 else image
         ax.imshow(rgb, cmap="gray" if image.ndim == 2 else None)

@@ -90,6 +90,24 @@ def _open_world_section(r: Mapping[str, Any]) -> str:
     return "".join(parts)
 
 
+def _velocity_section(r: Mapping[str, Any]) -> str:
+    """The shear band fitted to the maps against the one measured from footage (a second instrument)."""
+    check = r.get("velocity_check")
+    if not check:
+        return ""
+    head = "<h2>A second instrument: the shear band measured from footage</h2>"
+    if not check["pairs"]:
+        return head + f"<p>{esc(check['note'])}.</p>"
+    word = "agrees with" if check["agrees"] else "<b>disagrees</b> with"
+    rows = [[esc(p["parameter"]), num(p["fitted"], ".4f"), num(p["fitted_stderr"], ".4f"),
+             num(p["measured"], ".4f"), num(p["measured_stderr"], ".4f"), num(p["z"], "+.1f")]
+            for p in check["pairs"]]
+    return (head + f"<p>The shear band fitted to the concentration maps {word} the measured {esc(check['measured'])} "
+            f"(agreement: within 2 combined standard errors).</p>"
+            + table(["parameter", "from the maps", "SE", "from footage", "SE", "difference [SE]"], rows,
+                    [""] * len(rows), left=1))
+
+
 def render(r: Mapping[str, Any], figs: Sequence[Mapping[str, str]], out: Path) -> str:
     """The HTML page of diagnosis document ``r`` with figures ``figs`` (files read from ``out``)."""
     b = r["baseline"]
@@ -109,5 +127,6 @@ def render(r: Mapping[str, Any], figs: Sequence[Mapping[str, str]], out: Path) -
         "the highlighted row is the named cause.</p>",
         table(["cause", "fitted extension", "mean RMSD", "held-out RMSD", "held-out gain"], rows, best, left=2),
         _open_world_section(r),
+        _velocity_section(r),
         figures(figs, out, heading="Evidence"),
     ]))
