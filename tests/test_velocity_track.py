@@ -98,3 +98,12 @@ def test_the_law_over_beds_recovers_a_hidden_power(tmp_path, capsys):
     exp, se = law["params"]["exponent"], law["stderr"]["exponent"]
     assert abs(exp - 0.4) <= 3 * se and se < 0.2, (exp, se)
     assert (tmp_path / "law.png").is_file() and "(M~/0.5)^" in capsys.readouterr().out
+
+
+def test_a_video_recording_works_like_frames(tmp_path):
+    """An MPEG-4 video with experiment.json beside it (seed 9, 40 frames): the same measurement,
+    the recording named by its file."""
+    r = render_highspeed(tmp_path / "vid", fps=100.0, n_frames=40, seed=9, video="mp4v")
+    prof, recs = _measure(r.source)
+    est, se = prof.fit.params["delta_over_H"], prof.fit.stderr["delta_over_H"]
+    assert abs(est - 0.18) <= 3 * se and recs[0].source == str(r.source)

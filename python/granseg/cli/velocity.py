@@ -78,7 +78,7 @@ def _previews(recs, out: Path, force: bool) -> list[Path]:
     written = []
     for r in recs:
         exp = r.detected.experiment
-        source, _ = open_frames(exp.path.parent if exp.path.parent.is_dir() else r.source)
+        source, _ = open_frames(r.source)
         # a directory decodes on demand; a video gives its frames in order
         image = source.read(0) if hasattr(source, "read") else next(img for _, img in source.frames())
         h, w = image.shape[:2]

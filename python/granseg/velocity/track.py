@@ -40,6 +40,7 @@ import os
 import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -264,11 +265,10 @@ def track_recording(path: str | os.PathLike, *, D_p: float = D_P, prior: np.ndar
     v, v_err, z_mean, count = _layer_speeds(tracks, det.fps, len(det.spheres), n_layers, D_p)
     fast = (np.abs(steps) / d > MAX_STEP * 0.9) | (np.abs(v) / det.fps / scale / d > MAX_STEP * 0.9)
     if fast.any():
-        notes.append(f"{exp.path.parent.name}: layers {', '.join(str(j + 1) for j in np.flatnonzero(fast))} move "
+        notes.append(f"{Path(path).name}: layers {', '.join(str(j + 1) for j in np.flatnonzero(fast))} move "
                      f"about {MAX_STEP} diameters per frame or more at {det.fps:g} fps: left out")
         v[fast], v_err[fast] = np.nan, np.nan
-    return Recording(str(det.experiment.path.parent if det.experiment.path.parent.is_dir() else path), det.fps,
-                     tracks, v, v_err, z_mean, count, steps / d, notes, det)
+    return Recording(str(path), det.fps, tracks, v, v_err, z_mean, count, steps / d, notes, det)
 
 
 def join(recordings: Sequence[Recording]) -> tuple[np.ndarray, ...]:
