@@ -11,6 +11,7 @@ The public API, chosen rather than whatever is importable::
     granseg.calibrate(...)       factorial design + refinement of (k, delta/H)
     granseg.diagnose(...)        what the model gets wrong, and why
     granseg.measure_velocity(...) high-speed footage -> velocity profile and shear band
+    granseg.load_dem(dumps, config) a DEM run (LAMMPS dumps) -> maps and velocity profile
     granseg.fit, granseg.synth   curve fits; synthetic frames and campaigns
 
 SI units throughout (m, s, kg, Pa). Names are imported lazily so that the
@@ -45,6 +46,7 @@ _LAZY: dict[str, tuple[str, str | None]] = {
     "diagnose": ("granseg.diagnosis", "diagnose"),
     "measure_velocity": ("granseg.velocity", "measure_velocity"),
     "load_velocity": ("granseg.velocity", "load_velocity"),
+    "load_dem": ("granseg.dem", "load_run"),
     "fit": ("granseg.fit", None),
     "synth": ("granseg.synth", None),
     "plot": ("granseg.plot", None),

@@ -15,6 +15,7 @@ __all__ = [
     "FitError",
     "FlaggedMapError",
     "MapFormatError",
+    "DemFormatError",
     "OutputExistsError",
     "BadFrame",
     "QualityWarning",
@@ -43,6 +44,10 @@ class FlaggedMapError(GransegError, ValueError):
 
 class MapFormatError(GransegError, ValueError):
     """A map file or map data break the DATA.md format (names file and field)."""
+
+
+class DemFormatError(GransegError, ValueError):
+    """A DEM dump or its config cannot be read as DATA.md says (names file, snapshot or key)."""
 
 
 class OutputExistsError(GransegError, FileExistsError):

@@ -48,7 +48,11 @@ __all__ = [
 ]
 
 REQUIRED = ("c", "t", "z", "name", "heavy", "light", "rho_h", "rho_l", "c0", "M_g", "M_w")
-OPTIONAL = ("n", "n_heavy", "c_raw", "fps", "smoothing_frames", "quality")
+OPTIONAL = ("n", "n_heavy", "c_raw", "fps", "smoothing_frames", "quality", "view")
+# A cell that is not MODEL.md's (another apparatus, a DEM run) names its own
+# geometry, speed and material constants by their MODEL.md names (SI units).
+CELL_KEYS = ("H", "D_p", "D_in", "D_out", "rpm", "v1", "phi_s", "g")
+VIEWS = ("wall", "bulk")
 
 
 # --------------------------------------------------------------------------- smoothing
@@ -162,7 +166,10 @@ class Map(Conditions):
     Metadata: ``name``, ``heavy``, ``light``, ``rho_h``, ``rho_l`` [kg/m^3],
     ``c0`` [-], ``M_g``, ``M_w`` [kg], ``fps`` [1/s] or None,
     ``smoothing_frames`` (width of the moving average already in ``c``),
-    ``quality`` (the frame analysis' checks, a JSON object as text, or None).
+    ``quality`` (the frame analysis' checks, a JSON object as text, or None),
+    ``view`` (``wall`` or ``bulk``: what the layers sample; None = wall),
+    ``cell`` (the map's own geometry and constants by MODEL.md name, SI units,
+    e.g. ``{"H": 0.066, "rpm": 40.0}``; empty = MODEL.md's cell).
     """
 
     c: np.ndarray
@@ -174,6 +181,8 @@ class Map(Conditions):
     fps: float | None = None
     smoothing_frames: int = 1
     quality: str | None = None
+    view: str | None = None
+    cell: Mapping[str, float] = field(default_factory=dict)
     path: Path | None = None
     extra: Mapping[str, np.ndarray] = field(default_factory=dict)
 
@@ -219,6 +228,7 @@ class Map(Conditions):
             value = getattr(self, key)
             if value is not None:
                 out[key] = value
+        out.update(self.cell)
         return out
 
     def save(self, path: str | os.PathLike, force: bool = False) -> Path:
@@ -390,7 +400,22 @@ def _validate_optional(source: str, raw: Mapping[str, Any], shape: tuple[int, ..
         out["smoothing_frames"] = _smoothing(source, raw["smoothing_frames"])
     if raw.get("quality") is not None:
         out["quality"] = _quality(source, raw["quality"])
+    if raw.get("view") is not None:
+        out["view"] = _text(source, "view", raw["view"])
+        if out["view"] not in VIEWS:
+            raise _fail(source, "view", f"{out['view']!r} is not one of {list(VIEWS)}")
+    out["cell"] = _cell(source, raw)
     return out
+
+
+def _cell(source: str, raw: Mapping[str, Any]) -> dict[str, float]:
+    """The map's own cell constants (DATA.md), range-checked as the core checks them."""
+    cell = {k: _scalar(source, k, raw[k], 0.0, np.inf, k != "v1") for k in CELL_KEYS if raw.get(k) is not None}
+    if cell.get("phi_s", 0.0) > 1.0:
+        raise _fail(source, "phi_s", f"value {cell['phi_s']} outside (0, 1]")
+    if "D_in" in cell and "D_out" in cell and cell["D_out"] <= cell["D_in"]:
+        raise _fail(source, "D_out", f"{cell['D_out']} <= D_in = {cell['D_in']}")
+    return cell
 
 
 def _quality(source: str, value: Any) -> str:
@@ -439,16 +464,19 @@ def save_map(
 
     Units as in DATA.md: ``c`` [-] (n_t, n_layers), ``t`` [s], ``z`` [m],
     densities [kg/m^3], masses [kg]. ``optional`` may hold ``n``,
-    ``n_heavy``, ``c_raw``, ``fps`` [1/s] and ``smoothing_frames``; any other
+    ``n_heavy``, ``c_raw``, ``fps`` [1/s], ``smoothing_frames``, ``quality``,
+    ``view`` and the cell keys of DATA.md (``H``, ``D_p``, ...); any other
     key is refused (so a typo is not silently dropped). Refuses to replace an
     existing file unless ``force``. Returns the path written.
     """
-    unknown = sorted(set(optional) - set(OPTIONAL))
+    unknown = sorted(set(optional) - set(OPTIONAL) - set(CELL_KEYS))
     if unknown:
-        raise MapFormatError(f"{path}: unknown field(s) {unknown}; optional fields are {list(OPTIONAL)}")
+        raise MapFormatError(f"{path}: unknown field(s) {unknown}; optional fields are "
+                             f"{list(OPTIONAL) + list(CELL_KEYS)}")
     raw = dict(c=c, t=t, z=z, name=name, heavy=heavy, light=light, rho_h=rho_h,
                rho_l=rho_l, c0=c0, M_g=M_g, M_w=M_w, **optional)
     clean = _validate(str(path), raw)
+    clean.update(clean.pop("cell"))
     arrays = {k: (np.str_(v) if isinstance(v, str) else v) for k, v in clean.items()}
     return save_npz(path, arrays, force=force)
 
@@ -467,7 +495,7 @@ def load_map(path: str | os.PathLike) -> Map:
     except (OSError, ValueError, EOFError) as exc:
         raise MapFormatError(f"{p}: not a readable .npz archive ({exc})") from None
     clean = _validate(str(p), raw)
-    extra = {k: v for k, v in raw.items() if k not in REQUIRED and k not in OPTIONAL}
+    extra = {k: v for k, v in raw.items() if k not in REQUIRED and k not in OPTIONAL and k not in CELL_KEYS}
     m = Map(**clean, path=p, extra=extra)
     if m.failed_checks:
         warnings.warn(f"{p}: this map failed its frame-analysis quality checks: {', '.join(m.failed_checks)}",
