@@ -31,10 +31,11 @@ case "$cmd" in
     test)
         # The report test opens the HTML in headless Chromium (Debian's
         # package); CI machines are fresh, so install it there when possible.
-        if [ -n "${CI:-}" ] && ! command -v chromium >/dev/null 2>&1 \
+        # The DEM tests run a short LAMMPS job (Debian's lammps package); same.
+        if [ -n "${CI:-}" ] && { ! command -v chromium >/dev/null 2>&1 || ! command -v lmp >/dev/null 2>&1; } \
             && command -v apt-get >/dev/null 2>&1 && [ "$(id -u)" = 0 ]; then
-            (apt-get update -qq && apt-get install -y -qq chromium >/dev/null) \
-                || echo "warning: could not install chromium; the browser test will be skipped" >&2
+            (apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium lammps >/dev/null) \
+                || echo "warning: could not install chromium and lammps; the browser and LAMMPS tests will be skipped" >&2
         fi
         setup
         shift
