@@ -13,7 +13,7 @@ import pytest
 
 from granseg.dem import load_config, load_run, read_dumps
 from granseg.errors import DemFormatError, OutputExistsError
-from granseg.maps import load_map
+from granseg.maps import load_campaign, load_map
 
 # lj units of the example: d = 6 mm, light density 946 kg/m^3, g = 1
 LJ = {"length_m": 0.006, "time_s": math.sqrt(0.006 / 9.81), "density_kg_m3": 946.0}
@@ -184,7 +184,8 @@ def test_si_units_other_columns_gz_split_files_and_tilted_box_agree_with_lj(tmp_
 def test_map_with_its_cell_and_view_round_trips_through_the_file(tmp_path):
     run = load_run(_run_dir(tmp_path))
     written = run.save(tmp_path / "out", views=("bulk", "wall"))
-    assert [p.name for p in written] == ["run-bulk.npz", "run-wall.npz", "run-velocity.json"]
+    assert [p.relative_to(tmp_path / "out").as_posix() for p in written] == [
+        "bulk/run.npz", "wall/run.npz", "velocity/run.json"]
     back = load_map(written[1])
     assert back.view == "wall" and back.cell == pytest.approx(run.cell())
     assert "cell" not in back.extra and "H" not in back.extra
@@ -282,12 +283,13 @@ def test_cli_writes_both_views_and_the_profile_and_keeps_existing_files(tmp_path
     assert main(["dem", str(a), str(b), "--out", str(out)]) == 0
     text = capsys.readouterr().out
     assert "[2/2] b: 6 snapshots" in text and "shear band (bulk): delta/H = " in text
-    assert sorted(p.name for p in out.iterdir()) == ["a-bulk.npz", "a-velocity.json", "a-wall.npz",
-                                                      "b-bulk.npz", "b-velocity.json", "b-wall.npz"]
-    before = (out / "a-bulk.npz").read_bytes()
+    assert sorted(p.relative_to(out).as_posix() for p in out.rglob("*.*")) == [
+        "bulk/a.npz", "bulk/b.npz", "velocity/a.json", "velocity/b.json", "wall/a.npz", "wall/b.npz"]
+    before = (out / "bulk" / "a.npz").read_bytes()
     assert main(["dem", str(a), "--out", str(out), "--view", "bulk"]) != 0
     assert "already holds" in capsys.readouterr().err
-    assert (out / "a-bulk.npz").read_bytes() == before
+    assert (out / "bulk" / "a.npz").read_bytes() == before
+    assert len(load_campaign(out / "wall").maps) == 2  # each view's folder is a campaign
     # a bad run among good ones: nothing is written
     bad = _run_dir(tmp_path, name="bad", config=_config(types={"1": "PP"}))
     fresh = tmp_path / "fresh"

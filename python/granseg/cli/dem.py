@@ -11,8 +11,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "dem", help="turn DEM runs (LAMMPS dump custom files) into maps and velocity profiles",
         description="Read each run's dump files (a directory, or dump files) with the config that names "
         "the particle types, units, axes and cell (DATA.md), and write one concentration map per run and "
-        "view (NAME-bulk.npz, NAME-wall.npz) with the run's own cell, and the run's velocity profile "
-        "(NAME-velocity.json, as granseg velocity writes it).")
+        "view (OUT/bulk/NAME.npz, OUT/wall/NAME.npz: each view's folder is a campaign) with the run's own "
+        "cell, and the run's velocity profile (OUT/velocity/NAME.json, as granseg velocity writes it).")
     p.add_argument("runs", nargs="+", metavar="RUN", help="run directory (or dump file)")
     p.add_argument("--config", metavar="DEM.json",
                    help="types, units, axes and cell (default: dem.json beside each run's dumps)")
@@ -27,8 +27,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from granseg._io import prepare_output_dir
-    from granseg.dem import load_run
+    from granseg.dem.run import load_run, write_products
 
     views = ("bulk", "wall") if args.view == "both" else (args.view,)
     runs = [load_run(r, config=args.config) for r in args.runs]  # every run is read before anything is written
@@ -43,14 +42,13 @@ def run(args: argparse.Namespace) -> int:
         for note in r.notes:
             print(f"  note: {note}")
         got = r.products(views, t_from=args.t_from)
-        prof = got[f"{r.name}-velocity.json"]
+        prof = got[f"velocity/{r.name}.json"]
         p, e = prof.fit.params, prof.fit.stderr
         print(f"  shear band ({prof.conditions['view']}): delta/H = {p['delta_over_H']:.3f} +- "
               f"{e['delta_over_H']:.3f}, v0 = {p['v0']:.3f} m/s (rms residual {prof.fit.mse ** 0.5:.1f} errors)")
         for note in prof.fit_notes:
             print(f"  note: {note}")
         products.update(got)
-    out = prepare_output_dir(args.out, list(products), force=args.force)
-    for name, obj in products.items():
-        print(f"wrote {obj.save(out / name, force=args.force)}")
+    for path in write_products(args.out, products, force=args.force):
+        print(f"wrote {path}")
     return 0

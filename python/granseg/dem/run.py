@@ -34,7 +34,7 @@ from granseg.dem.config import DemConfig, Material, load_config
 from granseg.dem.dump import Snapshot, dump_files, read_dumps
 from granseg.errors import DemFormatError
 
-__all__ = ["DemRun", "load_run", "VIEWS"]
+__all__ = ["DemRun", "load_run", "write_products", "VIEWS"]
 
 VIEWS = ("bulk", "wall")
 BLOCKS = 10  # batch means for a layer speed's standard error (snapshots are correlated in time)
@@ -256,21 +256,28 @@ class DemRun:
 
     def products(self, views: Sequence[str] = ("bulk",), velocity: bool = True, t_from: float | None = None
                  ) -> dict[str, Any]:
-        """What :meth:`save` writes, by file name: ``NAME-VIEW.npz`` maps and ``NAME-velocity.json``."""
-        out: dict[str, Any] = {f"{self.name}-{v}.npz": self.to_map(v) for v in views}
+        """What :meth:`save` writes, by path in the output folder: ``VIEW/NAME.npz`` per view
+        (each view's folder is a campaign) and ``velocity/NAME.json``."""
+        out: dict[str, Any] = {f"{v}/{self.name}.npz": self.to_map(v) for v in views}
         if velocity:
-            out[f"{self.name}-velocity.json"] = self.velocity_profile(t_from=t_from)
+            out[f"velocity/{self.name}.json"] = self.velocity_profile(t_from=t_from)
         return out
 
     def save(self, out: str | os.PathLike, views: Sequence[str] = ("bulk",), velocity: bool = True,
              force: bool = False, t_from: float | None = None) -> list[Path]:
         """Write :meth:`products` into folder ``out``, each file atomically, after all are
         computed; an existing file is kept unless ``force``."""
-        from granseg._io import prepare_output_dir
+        return write_products(out, self.products(views, velocity, t_from), force)
 
-        products = self.products(views, velocity, t_from)
-        d = prepare_output_dir(out, list(products), force=force)
-        return [obj.save(d / name, force=force) for name, obj in products.items()]
+
+def write_products(out: str | os.PathLike, products: Mapping[str, Any], force: bool = False) -> list[Path]:
+    """Write maps and profiles (anything with ``.save(path, force)``) by their relative paths
+    into ``out``: every clash is refused before the first file is written."""
+    from granseg._io import prepare_output_dir
+
+    folders = sorted({str(Path(name).parent) for name in products} - {"."})
+    d = prepare_output_dir(out, list(products), force=force, folders=folders)
+    return [obj.save(d / name, force=force) for name, obj in products.items()]
 
 
 def _layer_means(v_sum: np.ndarray, n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
