@@ -49,6 +49,7 @@ fn paper_sweep() -> Vec<RunSpec> {
                     params,
                     t_out: t.clone(),
                     measured: None,
+                    n_layers: _core::sweep::N_LAYERS,
                 });
             }
         }

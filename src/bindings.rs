@@ -244,11 +244,12 @@ type SweepOut<'py> = (
 /// Many runs in parallel (rayon, GIL released).
 ///
 /// params: one dict per run; t: one array per run; measured: per run None or
-/// an (n_t, n_layers) map at that run's times; smoothing: per run window.
+/// an (n_t, n_layers) map at that run's times; smoothing: per run window;
+/// n_layers: per run, the layers of the output without a map (a map sets its own).
 /// Returns (layers per run, rmsd per run (NaN without a map), stats per run).
 /// A failed run raises, naming the run index.
 #[pyfunction]
-#[pyo3(signature = (params, t, measured, smoothing, n_cells, rtol, atol, threads=None))]
+#[pyo3(signature = (params, t, measured, smoothing, n_layers, n_cells, rtol, atol, threads=None))]
 #[allow(clippy::too_many_arguments)]
 fn sweep<'py>(
     py: Python<'py>,
@@ -256,15 +257,16 @@ fn sweep<'py>(
     t: Vec<PyReadonlyArray1<'py, f64>>,
     measured: Vec<Option<PyReadonlyArray2<'py, f64>>>,
     smoothing: Vec<usize>,
+    n_layers: Vec<usize>,
     n_cells: usize,
     rtol: f64,
     atol: f64,
     threads: Option<usize>,
 ) -> PyResult<SweepOut<'py>> {
     let n = params.len();
-    if t.len() != n || measured.len() != n || smoothing.len() != n {
+    if t.len() != n || measured.len() != n || smoothing.len() != n || n_layers.len() != n {
         return Err(PyValueError::new_err(
-            "params, t, measured and smoothing must have one entry per run",
+            "params, t, measured, smoothing and n_layers must have one entry per run",
         ));
     }
     let mut specs = Vec::with_capacity(n);
@@ -281,6 +283,7 @@ fn sweep<'py>(
             params: p,
             t_out: Arc::new(t[i].as_array().to_vec()),
             measured: m,
+            n_layers: n_layers[i],
         });
     }
     let results = detached(py, move || {

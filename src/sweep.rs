@@ -21,12 +21,17 @@ pub struct Measured {
     pub smoothing_frames: usize,
 }
 
+/// The paper's window: 15 layers of one particle diameter.
+pub const N_LAYERS: usize = 15;
+
 /// One run of a sweep.
 #[derive(Clone, Debug)]
 pub struct RunSpec {
     pub params: Params,
     pub t_out: Arc<Vec<f64>>,
     pub measured: Option<Arc<Measured>>,
+    /// Layers of the output map without a measured map (a map sets its own).
+    pub n_layers: usize,
 }
 
 /// What a run gives back.
@@ -42,8 +47,11 @@ pub struct RunResult {
 
 /// Solve one run and reduce it to layers (and RMSD).
 pub fn run_one(spec: &RunSpec, n_cells: usize, tol: Tolerances) -> Result<RunResult, SolveError> {
-    let n_layers = spec.measured.as_ref().map_or(15, |m| m.n_layers);
+    let n_layers = spec.measured.as_ref().map_or(spec.n_layers, |m| m.n_layers);
     let n_t = spec.t_out.len();
+    if n_layers == 0 {
+        return Err(SolveError::InvalidInput("n_layers must be >= 1".into()));
+    }
     if let Some(m) = &spec.measured {
         if m.n_layers == 0 || m.c.len() != n_t * m.n_layers {
             return Err(SolveError::InvalidInput(format!(
@@ -152,6 +160,7 @@ mod tests {
                 },
                 t_out: t.clone(),
                 measured: None,
+                n_layers: N_LAYERS,
             })
             .collect();
         let res = sweep(&specs, 60, Tolerances::default(), Some(2));
@@ -172,12 +181,35 @@ mod tests {
     }
 
     #[test]
+    fn any_layer_count_averages_the_same_profile() {
+        let t = Arc::new(vec![0.0, 600.0]);
+        let spec = |n_layers| RunSpec {
+            params: Params::default(),
+            t_out: t.clone(),
+            measured: None,
+            n_layers,
+        };
+        let (a, b) = (
+            run_one(&spec(11), 66, Tolerances::default()).unwrap(),
+            run_one(&spec(1), 66, Tolerances::default()).unwrap(),
+        );
+        assert_eq!((a.n_layers, a.layers.len()), (11, 22));
+        // one layer is the depth mean: the mean of eleven equal layers
+        for k in 0..2 {
+            let mean: f64 = a.layers[k * 11..(k + 1) * 11].iter().sum::<f64>() / 11.0;
+            assert!((mean - b.layers[k]).abs() < 1e-12);
+        }
+        assert!(run_one(&spec(0), 66, Tolerances::default()).is_err());
+    }
+
+    #[test]
     fn a_bad_run_fails_alone() {
         let t = Arc::new(vec![0.0, 100.0]);
         let good = RunSpec {
             params: Params::default(),
             t_out: t.clone(),
             measured: None,
+            n_layers: N_LAYERS,
         };
         let bad = RunSpec {
             params: Params {
@@ -186,6 +218,7 @@ mod tests {
             },
             t_out: t,
             measured: None,
+            n_layers: N_LAYERS,
         };
         let res = sweep(&[good, bad], 30, Tolerances::default(), None);
         assert!(res[0].is_ok());

@@ -296,3 +296,27 @@ def test_cli_writes_both_views_and_the_profile_and_keeps_existing_files(tmp_path
     assert main(["dem", str(a), str(bad), "--out", str(fresh)]) != 0
     assert "needs exactly two materials" in capsys.readouterr().err
     assert not fresh.exists()
+
+
+def test_the_depth_mean_check_flags_a_wall_view_that_favours_heavy_grains(tmp_path):
+    """Heavy grains gather at the side walls over the run while the bed keeps its grains: the bulk
+    keeps its depth-mean heavy share exactly, the wall view drifts, and its quality record says so."""
+    d = tmp_path / "drift"
+    d.mkdir()
+    bed = _bed()
+    text = []
+    for k, step in enumerate(STEPS):
+        b = {key: v.copy() for key, v in bed.items()}
+        if k >= 2:  # every heavy grain to a wall, every light wall grain inside
+            grain = b["type"] != 3
+            b["y"] = np.where(grain & (b["type"] == 2), 0.5, np.where(grain, 2.0, b["y"]))
+        p = tmp_path / f"s{k}.dump"
+        _write_dump(p, b, (step,))
+        text.append(p.read_text())
+    (d / "grains.dump").write_text("".join(text))
+    (d / "dem.json").write_text(json.dumps(_config()))
+    run = load_run(d)
+    bulk, wall = run.to_map("bulk"), run.to_map("wall")
+    assert not bulk.failed_checks
+    assert wall.failed_checks == ["heavy_share_conserved"]
+    assert json.loads(wall.quality)["checks"]["heavy_share_conserved"]["value"] > 0.4

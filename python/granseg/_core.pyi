@@ -78,6 +78,7 @@ def sweep(
     t: list[npt.NDArray[np.float64]],
     measured: list[npt.NDArray[np.float64] | None],
     smoothing: list[int],
+    n_layers: list[int],
     n_cells: int,
     rtol: float,
     atol: float,

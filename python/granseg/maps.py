@@ -140,6 +140,9 @@ class Conditions:
     c0: float
     M_g: float
     M_w: float
+    #: the experiment's own cell constants by MODEL.md name (SI; DATA.md's optional
+    #: geometry keys): empty for MODEL.md's cell. Every model run made for it uses them.
+    cell: Mapping[str, float] = field(default_factory=dict, kw_only=True, compare=False)
 
     @property
     def delta_R(self) -> float:
@@ -152,8 +155,8 @@ class Conditions:
         return self.M_w / self.M_g
 
     def case(self) -> dict[str, float]:
-        """Model parameters this experiment fixes: rho_h, rho_l, c0, M_w."""
-        return {"rho_h": self.rho_h, "rho_l": self.rho_l, "c0": self.c0, "M_w": self.M_w}
+        """Model parameters this experiment fixes: rho_h, rho_l, c0, M_w and its cell's."""
+        return {"rho_h": self.rho_h, "rho_l": self.rho_l, "c0": self.c0, "M_w": self.M_w, **self.cell}
 
 
 @dataclass(frozen=True, eq=False)
@@ -182,7 +185,6 @@ class Map(Conditions):
     smoothing_frames: int = 1
     quality: str | None = None
     view: str | None = None
-    cell: Mapping[str, float] = field(default_factory=dict)
     path: Path | None = None
     extra: Mapping[str, np.ndarray] = field(default_factory=dict)
 
@@ -191,6 +193,14 @@ class Map(Conditions):
         source = str(self.path) if self.path is not None else f"map {self.name!r}"
         for key, value in _validate(source, self.to_arrays()).items():
             object.__setattr__(self, key, value)
+
+    @classmethod
+    def from_arrays(cls, arrays: Mapping[str, Any], path: Path | None = None,
+                    extra: Mapping[str, Any] | None = None) -> Map:
+        """A map from DATA.md's flat keys, as a file holds them (the cell constants as
+        top-level keys ``H``, ``rpm``, ...; a key set to None is absent)."""
+        source = str(path) if path is not None else f"map {arrays.get('name')!r}"
+        return cls(**_validate(source, arrays), path=path, extra=dict(extra or {}))
 
     @property
     def n_layers(self) -> int:
@@ -494,9 +504,8 @@ def load_map(path: str | os.PathLike) -> Map:
             raw = {k: data[k] for k in data.files}
     except (OSError, ValueError, EOFError) as exc:
         raise MapFormatError(f"{p}: not a readable .npz archive ({exc})") from None
-    clean = _validate(str(p), raw)
     extra = {k: v for k, v in raw.items() if k not in REQUIRED and k not in OPTIONAL and k not in CELL_KEYS}
-    m = Map(**clean, path=p, extra=extra)
+    m = Map.from_arrays(raw, path=p, extra=extra)
     if m.failed_checks:
         warnings.warn(f"{p}: this map failed its frame-analysis quality checks: {', '.join(m.failed_checks)}",
                       QualityWarning, stacklevel=2)

@@ -301,12 +301,24 @@ def _run_chunk(payload: dict[str, Any]) -> tuple[list[np.ndarray], np.ndarray, l
         payload["t"],
         payload["measured"],
         payload["smoothing"],
+        payload["n_layers"],
         payload["n_cells"],
         payload["rtol"],
         payload["atol"],
         payload.get("threads"),
     )
     return [np.asarray(x) for x in layers], np.asarray(rmsd), [dict(s) for s in stats]
+
+
+def _case_layers(n_layers: int | Sequence[int], n_cases: int) -> list[int]:
+    """One layer count per case (each a whole number >= 1)."""
+    values = [n_layers] * n_cases if np.ndim(n_layers) == 0 else list(n_layers)
+    if len(values) != n_cases:
+        raise ValueError(f"n_layers has {len(values)} entries but there are {n_cases} cases")
+    for v in values:
+        if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
+            raise ValueError(f"n_layers = {v!r} must be a whole number >= 1")
+    return [int(v) for v in values]
 
 
 def _chunks(n: int, size: int) -> list[slice]:
@@ -320,6 +332,7 @@ def sweep(
     cases: Sequence[Mapping[str, float]] | None = None,
     t: Any = None,
     measured: Sequence[Any] | None = None,
+    n_layers: int | Sequence[int] = N_LAYERS,
     n_cells: int = N_CELLS,
     rtol: float | None = None,
     atol: float | None = None,
@@ -340,6 +353,8 @@ def sweep(
     measured : one measured map per case (dict or Map with ``c`` (n_t, n_layers),
         ``t`` (n_t,), optional ``smoothing_frames``). The model is evaluated at
         the map's times, smoothed like the map, and its RMSD returned.
+    n_layers : layers of the output maps without a measured map (a map sets
+        its own): one number for every case, or one per case.
     n_cells, rtol, atol : solver settings as in :func:`simulate`.
     threads : worker threads for this call (default: RAYON_NUM_THREADS or all cores).
     client : a ``dask.distributed.Client``; the runs are split into chunks,
@@ -366,6 +381,7 @@ def sweep(
             raise ValueError("t (output times, s) is required when no measured maps are given")
         case_t = _case_times(t, len(case_list))
         meas = [None] * len(case_list)
+    case_layers = _case_layers(n_layers, len(case_list))
 
     run_params, run_points, run_case = [], [], []
     for ci, case in enumerate(case_list):
@@ -379,6 +395,7 @@ def sweep(
         "t": [case_t[c] for c in run_case],
         "measured": [None if meas[c] is None else meas[c][0] for c in run_case],
         "smoothing": [1 if meas[c] is None else meas[c][2] for c in run_case],
+        "n_layers": [case_layers[c] if meas[c] is None else meas[c][0].shape[1] for c in run_case],
         "n_cells": n_cells,
         "rtol": rtol,
         "atol": atol,
@@ -401,7 +418,7 @@ def sweep(
 
 def _execute(payload: dict[str, Any], n: int, client: Any, progress: bool | None):
     """Run the payload locally (rayon) or on a Dask client, in chunks."""
-    keys = ("params", "t", "measured", "smoothing")
+    keys = ("params", "t", "measured", "smoothing", "n_layers")
 
     def sub(sl: slice) -> dict[str, Any]:
         return {**payload, **{k: payload[k][sl] for k in keys}}

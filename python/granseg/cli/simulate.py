@@ -24,6 +24,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     mat.add_argument("--rho-h", type=float, help="heavy density, kg/m^3 (overrides --heavy)")
     mat.add_argument("--rho-l", type=float, help="light density, kg/m^3 (overrides --light)")
     p.add_argument("--c0", type=float, default=0.5, help="overall heavy fraction (default 0.5)")
+    p.add_argument("--like", metavar="MAP.npz",
+                   help="simulate the experiment of a map: its materials, c0, load, cell (DATA.md), layers and "
+                        "times; prints the RMSD against it (--k, --delta-over-H, --set still apply)")
     p.add_argument("--k", type=float, help="friction correction k (default 0.70)")
     p.add_argument("--delta-over-H", type=float, dest="delta_over_H", help="shear band delta/H (default 0.18)")
     p.add_argument("--velocity", metavar="V.json",
@@ -39,7 +42,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--atol", type=float, help="absolute tolerance of the stepper")
     p.add_argument("--out", default="granseg-simulation",
                    help="figure path without extension; writes OUT.png and OUT.pdf")
-    p.add_argument("--npz", help="also write the 15-layer model map as a map .npz (DATA.md)")
+    p.add_argument("--npz", help="also write the model map (15 layers, or the --like map's) as a map .npz (DATA.md)")
     p.add_argument("--force", action="store_true", help="overwrite existing output files")
     p.set_defaults(func=run)
 
@@ -86,8 +89,13 @@ def run(args: argparse.Namespace) -> int:
     import granseg
     from granseg import fit, plot
 
-    params = {"rho_h": _density(args.heavy, args.rho_h, "heavy"),
-              "rho_l": _density(args.light, args.rho_l, "light"), "c0": args.c0}
+    like = _like(args)
+    if like is not None:
+        params = like.case()
+        args.heavy, args.light = like.heavy, like.light
+    else:
+        params = {"rho_h": _density(args.heavy, args.rho_h, "heavy"),
+                  "rho_l": _density(args.light, args.rho_l, "light"), "c0": args.c0}
     for key in ("k", "delta_over_H"):
         if getattr(args, key) is not None:
             params[key] = getattr(args, key)
@@ -96,7 +104,7 @@ def run(args: argparse.Namespace) -> int:
         params.update(_measured(args, params))
     if not (args.t_end > 0 and args.dt > 0):
         raise ValueError("--t-end and --dt must be > 0 s")
-    t = np.arange(0.0, args.t_end + 0.5 * args.dt, args.dt)
+    t = like.t if like is not None else np.arange(0.0, args.t_end + 0.5 * args.dt, args.dt)
     stem = Path(args.out)
     outputs = [stem.with_name(stem.name + ext) for ext in (".png", ".pdf")]
     for p in outputs + ([Path(args.npz)] if args.npz else []):
@@ -106,9 +114,15 @@ def run(args: argparse.Namespace) -> int:
     sol = granseg.simulate(t=t, n_cells=args.n_cells, rtol=args.rtol, atol=args.atol, **params)
     elapsed = time.perf_counter() - start
     steady = granseg.steady_state(n_cells=args.n_cells, **params)
-    layers = sol.layers()
+    layers = sol.layers(like.n_layers if like is not None else 15)
     bottom = fit.fit_tanh(sol.t, layers[:, 0])
     _summary(args, sol, layers, steady, bottom, elapsed)
+    if like is not None:
+        from granseg.maps import moving_average
+
+        diff = moving_average(layers, like.smoothing_frames) - like.c
+        print(f"  against {args.like} ({like.name}, {like.n_layers} layers, view {like.view or 'wall'}): "
+              f"RMSD {np.sqrt(np.nanmean(diff**2)):.4f}")
 
     p = sol.params
     title = (f"{args.heavy if args.rho_h is None else ''}/{args.light if args.rho_l is None else ''} "
@@ -117,10 +131,21 @@ def run(args: argparse.Namespace) -> int:
     fig = plot.simulation(sol, steady=steady, fit=bottom if bottom.converged else None, title=title)
     written = plot.save_figure(fig, stem, force=args.force)
     if args.npz:
-        _write_npz(args, sol, layers)
+        _write_npz(args, sol, layers, like.cell if like is not None else {})
         written.append(Path(args.npz))
     print("wrote " + ", ".join(str(w) for w in written))
     return 0
+
+
+def _like(args: argparse.Namespace):
+    """The map ``--like`` names (None without it); its experiment replaces the material options."""
+    if not args.like:
+        return None
+    from granseg.maps import load_map
+
+    if args.rho_h is not None or args.rho_l is not None:
+        raise ValueError("--like and --rho-h/--rho-l: give one (the map names its densities)")
+    return load_map(args.like)
 
 
 def _summary(args, sol, layers, steady, bottom, elapsed) -> None:
@@ -143,7 +168,7 @@ def _summary(args, sol, layers, steady, bottom, elapsed) -> None:
         print(f"    layer {j:2d}                      " + "  ".join(f"{layers[i, j]:>8.3f}" for i in picks))
 
 
-def _write_npz(args, sol, layers) -> None:
+def _write_npz(args, sol, layers, cell) -> None:
     from granseg.maps import save_map
     from granseg.model import derived
 
@@ -154,4 +179,4 @@ def _write_npz(args, sol, layers) -> None:
     save_map(args.npz, c=layers, t=sol.t, z=(np.arange(n) + 0.5) * p["H"] / n,
              name="simulation", heavy=args.heavy, light=args.light, rho_h=p["rho_h"],
              rho_l=p["rho_l"], c0=p["c0"], M_g=p["phi_s"] * area * p["H"] * rho_solid,
-             M_w=p["M_w"], force=args.force)
+             M_w=p["M_w"], force=args.force, **cell)

@@ -209,17 +209,13 @@ class DemRun:
         t = self.t
         steps = np.diff(t)
         fps = {"fps": 1 / steps[0]} if steps.size and np.allclose(steps, steps[0], rtol=1e-6) else {}
-        tot = tab["vol"][0].sum()
-        c0 = float(tab["vol_heavy"][0].sum() / tot) if view == "bulk" else self._bulk_c0()
+        bulk = tab if view == "bulk" else self._tables("bulk")
+        c0 = float(bulk["vol_heavy"][0].sum() / bulk["vol"][0].sum())
         return Map(c=c, t=t, z=(np.arange(self.n_layers) + 0.5) * h, name=name or self.name,
                    heavy=heavy.name, light=light.name, rho_h=heavy.density, rho_l=light.density, c0=c0,
                    M_g=self.grain_mass(), M_w=self.config.M_w, n=tab["n"].astype(np.int64),
                    n_heavy=tab["n_heavy"].astype(np.int64), smoothing_frames=1, view=view,
-                   cell=self.cell(), **fps)
-
-    def _bulk_c0(self) -> float:
-        tab = self._tables("bulk")
-        return float(tab["vol_heavy"][0].sum() / tab["vol"][0].sum())
+                   cell=self.cell(), quality=_quality(tab, bulk, view), **fps)
 
     # ---------------------------------------------------------------- the velocity profile
 
@@ -278,6 +274,16 @@ def write_products(out: str | os.PathLike, products: Mapping[str, Any], force: b
     folders = sorted({str(Path(name).parent) for name in products} - {"."})
     d = prepare_output_dir(out, list(products), force=force, folders=folders)
     return [obj.save(d / name, force=force) for name, obj in products.items()]
+
+
+def _quality(tab: Mapping[str, np.ndarray], bulk: Mapping[str, np.ndarray], view: str) -> str:
+    """The map's quality record: whether the view keeps the bed's depth-mean heavy share (by
+    count, the bulk's at the start: equal to c0 by volume when the sizes are equal)."""
+    from granseg.measure.quality import Quality, depth_mean_check
+
+    share0 = float(bulk["n_heavy"][0].sum() / bulk["n"][0].sum())
+    check = depth_mean_check(tab["n"], tab["n_heavy"], share0)
+    return Quality((check,), {"source": "DEM", "view": view}).to_json()
 
 
 def _layer_means(v_sum: np.ndarray, n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -207,7 +207,7 @@ def measure(maps: Sequence[Map], exps: Sequence[Any], fixed: dict[str, float] | 
             out.append((ww * (r - a * pred)).ravel())
         return np.concatenate(out)
 
-    D_p = fixed.get("D_p", defaults()["D_p"])
+    D_p = {**fixed, **rows[0][1].case()}.get("D_p", defaults()["D_p"])  # the campaign's cell
     lo = [-np.log(WIDTH_RANGE_DP[1] * D_p), DELTA_RANGE[0]]
     hi = [-np.log(WIDTH_RANGE_DP[0] * D_p), DELTA_RANGE[1]]
     x0 = [-np.log(10.0 * D_p), fixed.get("delta_over_H", defaults()["delta_over_H"])]

@@ -49,7 +49,7 @@ class ExpInfo(Conditions):
     def of(cls, m: Any) -> ExpInfo:
         """From a :class:`granseg.maps.Map` (or anything with the same attributes)."""
         return cls(str(m.name), str(m.heavy), str(m.light), float(m.rho_h), float(m.rho_l),
-                   float(m.c0), float(m.M_g), float(m.M_w))
+                   float(m.c0), float(m.M_g), float(m.M_w), cell=dict(getattr(m, "cell", {})))
 
 
 @dataclass(frozen=True)

@@ -133,7 +133,8 @@ def model_maps(data: Data, effect: Effect, runs: Sequence[tuple[Mapping[str, flo
         times.append(request)
         rows.append(index)
     t0 = time.perf_counter()
-    res = sweep(cases=cases, t=times, progress=False, **data.opts)
+    res = sweep(cases=cases, t=times, n_layers=[data.maps[i].n_layers for _, i in runs], progress=False,
+                **data.opts)
     data.sweep_seconds += time.perf_counter() - t0
     data.n_runs += len(cases)
     data.n_sweeps += 1

@@ -33,9 +33,9 @@ __all__ = ["FIGURES", "before_after", "candidates", "covariates", "departure", "
 PAIR_COLOURS: list[str] = STYLE["axes.prop_cycle"].by_key()["color"]
 
 
-def _bed_height(d: Diagnosis) -> float:
-    """Bed height H [m] the diagnosis ran with (the core's default unless fixed)."""
-    return float(d.data.fixed.get("H", defaults()["H"]))
+def _bed_height(d: Diagnosis, m: Any) -> float:
+    """Bed height H [m] of map ``m`` in the diagnosis: its own cell's, else the one fixed, else MODEL.md's."""
+    return float({**d.data.fixed, **m.cell}.get("H", defaults()["H"]))
 
 
 def residual_maps(d: Diagnosis) -> Figure:
@@ -43,14 +43,13 @@ def residual_maps(d: Diagnosis) -> Figure:
     n = len(d.maps)
     cols = min(4, n)
     rows = int(np.ceil(n / cols))
-    H = _bed_height(d)
     with style():
         fig = new_figure(7.2, 1.45 * rows + 0.5)
         axes = np.atleast_1d(fig.subplots(rows, cols, sharey=True)).ravel()
         norm = TwoSlopeNorm(0.0, -0.5, 0.5)
         mesh = None
         for ax, m, lay in zip(axes, d.maps, d.baseline.layers, strict=False):
-            mesh = ax.pcolormesh(*map_edges(m, H), (lay - m.c).T, cmap="RdBu_r", norm=norm, rasterized=True)
+            mesh = ax.pcolormesh(*map_edges(m, _bed_height(d, m)), (lay - m.c).T, cmap="RdBu_r", norm=norm, rasterized=True)
             ax.set_title(rf"{m.name}, $\tilde M$ = {m.M_tilde:.2f}", fontsize=7.5)
             ax.tick_params(labelsize=6.5)
         for ax in axes[n:]:
@@ -221,7 +220,7 @@ def before_after(d: Diagnosis) -> Figure:
     if f is not None:
         label = f.effect.name.removeprefix("law_").replace("_", " ")
         panels.append((f"{label}, RMSD {f.rmsd[i]:.3f}", f.layers[i]))
-    te, ze = map_edges(m, _bed_height(d))
+    te, ze = map_edges(m, _bed_height(d, m))
     with style():
         fig = new_figure(7.2, 2.3)
         axes = fig.subplots(1, len(panels), sharey=True)

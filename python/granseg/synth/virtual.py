@@ -283,9 +283,9 @@ def noise_process(noise: bool | str | NoiseProcess | None) -> NoiseProcess | Non
 # --------------------------------------------------------------------------- effects
 
 
-def _exp_info(cond: Condition) -> ExpInfo:
+def _exp_info(cond: Condition, cell: Mapping[str, float]) -> ExpInfo:
     return ExpInfo(cond.label(), cond.heavy, cond.light, MATERIALS[cond.heavy], MATERIALS[cond.light],
-                   cond.c0, cond.M_g, cond.M_w)
+                   cond.c0, cond.M_g, cond.M_w, cell=dict(cell))
 
 
 def _effect(effect: str | None, strength: float | None) -> tuple[Effect, float]:
@@ -307,10 +307,10 @@ def _cause(name: str) -> Effect:
 # --------------------------------------------------------------------------- one experiment
 
 
-def _truth(params: Mapping[str, float], t: np.ndarray, shift: float, n_cells: int) -> np.ndarray:
-    """Bed layer means (n_t, 15) at plate times t [s] with segregation delayed by ``shift``."""
+def _truth(params: Mapping[str, float], t: np.ndarray, shift: float, n_cells: int, n_layers: int) -> np.ndarray:
+    """Bed layer means (n_t, n_layers) at plate times t [s] with segregation delayed by ``shift``."""
     request, index = shifted_times(t, shift)
-    return simulate(t=request, n_cells=n_cells, rtol=1e-5, atol=1e-7, **params).layers()[index]
+    return simulate(t=request, n_cells=n_cells, rtol=1e-5, atol=1e-7, **params).layers(n_layers)[index]
 
 
 def _duration(params: Mapping[str, float], shift: float, n_cells: int) -> float:
@@ -395,19 +395,19 @@ def _experiment(cond: Condition, effect: Effect, strength: float, base: Mapping[
                 effect_params: Mapping[str, float], rng: np.random.Generator, opts: Mapping[str, Any]
                 ) -> dict[str, Any]:
     """The map arrays (DATA.md keys) of one virtual experiment."""
-    exp = _exp_info(cond)
+    exp = _exp_info(cond, opts["cell"])
     x = {**base, **effect.hidden(strength, exp, effect_params)}
     params, shift = effect.solver_params(x, exp), effect.time_shift(x, exp)
     fps = float(opts["fps"] or frame_rate(params["rho_h"], params["rho_l"]))
     duration = float(opts["duration"] or _duration(params, shift, opts["n_cells"]))
     t = np.arange(0.0, duration + 0.5 / fps, 1.0 / fps)
-    bed = _truth(params, t, shift, opts["n_cells"])
+    bed = _truth(params, t, shift, opts["n_cells"], opts["n_layers"])
     seen = np.clip(effect.observe(x, exp, bed), 0.0, 1.0)
     H = params.get("H", DEFAULTS["H"])
     z = (np.arange(bed.shape[1]) + 0.5) * H / bed.shape[1]
     out = dict(t=t, z=z, name=cond.label(), heavy=cond.heavy, light=cond.light,
                rho_h=params["rho_h"], rho_l=params["rho_l"], c0=cond.c0, M_g=cond.M_g,
-               M_w=cond.M_w, fps=fps)
+               M_w=cond.M_w, fps=fps, **opts["cell"])
     proc = opts["noise"]
     if proc is None:
         return {**out, "c": seen, "smoothing_frames": 1}
@@ -471,6 +471,8 @@ def campaign(
     delta_over_H: float = 0.18,
     effect_params: Mapping[str, float] | None = None,
     n_cells: int = 180,
+    cell: Mapping[str, float] | None = None,
+    n_layers: int = 15,
     force: bool = False,
 ) -> list[Any]:
     """Simulate a campaign of virtual experiments with one effect hidden in it.
@@ -495,6 +497,10 @@ def campaign(
     k, delta_over_H : the baseline's friction correction [-] and band width [-].
     effect_params : extra settings (``drift_time`` [s] of evolving_shear_band).
     n_cells : cells of the simulation behind the maps.
+    cell : another cell than MODEL.md's, by MODEL.md names (``H``, ``D_p``,
+        ``D_in``, ``D_out``, ``rpm``, ``v1``, ``phi_s``, ``g``; SI): the runs use
+        it and the maps carry it (DATA.md).
+    n_layers : layers of the maps (15: the paper's window).
 
     Returns the list of :class:`granseg.maps.Map`, in condition order.
     """
@@ -505,12 +511,15 @@ def campaign(
         proc = replace(proc, n_particles=n_particles)
     if not smoothing_s >= 0:
         raise ValueError(f"smoothing_s = {smoothing_s!r} s must be >= 0")
-    opts = dict(noise=proc, smoothing_s=float(smoothing_s),
-                fps=fps, duration=duration, n_cells=int(n_cells))
+    cell = _cell(cell)
+    if isinstance(n_layers, bool) or not isinstance(n_layers, int) or n_layers < 1:
+        raise ValueError(f"n_layers = {n_layers!r} must be a whole number >= 1")
+    opts = dict(noise=proc, smoothing_s=float(smoothing_s), fps=fps, duration=duration, n_cells=int(n_cells),
+                cell=cell, n_layers=n_layers)
     base = {"k": float(k), "delta_over_H": float(delta_over_H)}
     rng = np.random.default_rng(seed)
     arrays = [_experiment(c, chosen, s, base, dict(effect_params or {}), rng, opts) for c in conds]
-    maps = [Map(**a) for a in arrays]
+    maps = [Map.from_arrays(a) for a in arrays]
     if out_dir is not None:
         _write(Path(out_dir), arrays, save_map, force,
                {"effect": "none" if isinstance(chosen, Baseline) else chosen.name, "strength": s, "seed": seed, "baseline": base,
@@ -520,6 +529,18 @@ def campaign(
                 "smoothing_s": smoothing_s,
                 "experiments": [a["name"] for a in arrays], "synthetic": True})
     return maps
+
+
+def _cell(cell: Mapping[str, float] | None) -> dict[str, float]:
+    """The cell constants, checked by name (MODEL.md's geometry, speed and material constants)."""
+    from granseg.maps import CELL_KEYS
+
+    out = {}
+    for key, value in (cell or {}).items():
+        if key not in CELL_KEYS:
+            raise ValueError(f"cell: {key!r} is not a cell constant; those are {', '.join(CELL_KEYS)}")
+        out[key] = float(value)
+    return out
 
 
 def _write(out: Path, arrays: list[dict[str, Any]], save_map: Any, force: bool, truth: dict[str, Any]) -> None:
