@@ -30,3 +30,31 @@ def test_a_drifting_view_fails():
     assert depth_mean_check(n, n_heavy, c0).passed
     n_heavy[20:, :5] = 6  # the bottom layers turn heavy in view while the bed cannot gain heavy grains
     assert not depth_mean_check(n, n_heavy, c0).passed
+
+
+def test_diagnosis_takes_a_drifting_window_as_the_observation_law():
+    """Maps whose view favours heavy grains wherever the bed is mixed (c_wall = c + s c (1 - c)):
+    each is flagged by the window check, and the diagnosis names the observation law instead of
+    fitting physics causes to it."""
+    import numpy as np
+
+    from granseg.diagnosis import diagnose
+    from granseg.maps import Map
+    from granseg.measure.quality import Quality
+
+    conds = [Condition("glass", "PP", c0, mg) for c0, mg in ((0.3, 1.5), (0.5, 2.0), (0.7, 2.5))]
+    conds.append(Condition("POM", "PP", 0.5, 1.6))
+    rng = np.random.default_rng(0)
+    maps = []
+    for m in campaign(conditions=conds, noise=False, fps=1 / 60, n_cells=48):
+        n = np.full(m.c.shape, 40)
+        n_heavy = rng.binomial(n, np.clip(m.c + 1.0 * m.c * (1 - m.c), 0, 1))
+        quality = Quality((depth_mean_check(n, n_heavy, m.c0),), {}).to_json()
+        maps.append(Map.from_arrays({**m.to_arrays(), "c": n_heavy / n, "n": n, "n_heavy": n_heavy,
+                                     "quality": quality}))
+    assert all(m.failed_checks == ["heavy_share_conserved"] for m in maps)
+    d = diagnose(maps, n_cells=48, progress=False, max_nfev=12)
+    r = d.result
+    assert r["window_check"]["flagged"] == [m.name for m in maps]
+    assert r["candidates"] == []  # no physics cause was bent to fit the view
+    assert r["cause"] == "new_law" and r["departure"]["law"] == "observation", r["decision"]["reason"]

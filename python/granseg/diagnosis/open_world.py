@@ -17,7 +17,7 @@ refitted from the full fit; shear_gaussian, seed 2002, misclassified noise).
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -81,11 +81,12 @@ def scored(fits: dict[str, Fit], baseline_rmsd: float) -> list[str]:
 
 
 def explore(data: Data, base: Fit, baseline_held_out: np.ndarray, *, max_nfev: int = LAW_NFEV,
-            log: Callable[[str], None] = lambda msg: None) -> OpenWorld:
-    """Fit every law correction, score the best and its contenders held out (module doc)."""
+            log: Callable[[str], None] = lambda msg: None, selected: Sequence[str] | None = None) -> OpenWorld:
+    """Fit every law correction (or those ``selected``), score the best and its contenders
+    held out (module doc)."""
     t0 = time.perf_counter()
     T = time_scale(data)
-    fits = {L.name: fit(data, L, x0=base.values(), max_nfev=max_nfev) for L in laws.build(T)}
+    fits = {L.name: fit(data, L, x0=base.values(), max_nfev=max_nfev) for L in laws.build(T, selected)}
     held, layers, gains = {}, {}, {}
     for name in scored(fits, base.rmsd_mean):
         held[name], layers[name], _ = loo_predict(data, fits[name], exact=True, max_nfev=LOO_NFEV, start="full")

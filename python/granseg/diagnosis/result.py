@@ -125,6 +125,7 @@ class DiagnosisJSON(TypedDict, total=False):
     departure: DepartureJSON | None
     open_world: dict[str, Any] | None
     velocity_check: dict[str, Any] | None
+    window_check: dict[str, Any]
     experiments: list[dict[str, Any]]
     settings: dict[str, Any]
     report: str
@@ -275,6 +276,16 @@ def build_result(d: Diagnosis) -> DiagnosisJSON:
     )
     if d.velocity_check is not None:
         out["velocity_check"] = d.velocity_check
+    if d.window_flagged:
+        out["summary"] = (f"The window check flags {len(d.window_flagged)} of {d.data.n} maps: their depth-mean "
+                          "heavy share drifts, which a closed bed cannot do, so the view was examined instead "
+                          "of the physics. " + out["summary"].replace("No catalogued cause explains the misfit; ",
+                                                                      "", 1))
+        out["window_check"] = {
+            "flagged": list(d.window_flagged), "check": "heavy_share_conserved",
+            "meaning": "the depth-mean heavy share of these maps drifts beyond their counting noise: the view "
+                       "does not sample the bed fairly, so the physics causes were not fitted and the "
+                       "observation law was"}
     if d.report_path is not None:
         out["report"] = d.report_path
     return out

@@ -32,6 +32,10 @@ from granseg.maps import Map, check_accepted
 
 __all__ = ["Diagnosis", "diagnose"]
 
+#: the quality check that says a map's view does not sample the bed fairly, and the law that models it
+WINDOW_CHECK = "heavy_share_conserved"
+WINDOW_LAW = "law_observation"
+
 
 @dataclass
 class Diagnosis:
@@ -63,6 +67,9 @@ class Diagnosis:
     open_world: OpenWorld | None = None
     #: the fitted shear band against the measured one (None: no measurement given)
     velocity_check: dict[str, Any] | None = None
+    #: maps whose view failed the window check (their depth-mean heavy share drifts): diagnosed
+    #: with the observation law instead of the physics causes
+    window_flagged: list[str] = field(default_factory=list)
 
     @property
     def cause(self) -> str:
@@ -164,10 +171,17 @@ def diagnose(
     candidates = catalogue.build(causes)
     log = _printer(progress)
     maps = _as_maps(campaign)
-    check_accepted(maps, accept_flagged)
+    # a map whose only failed check is the window's is diagnosed: what its view gets wrong is the finding
+    window = [m.name for m in maps if WINDOW_CHECK in m.failed_checks]
+    check_accepted([m for m in maps if set(m.failed_checks) - {WINDOW_CHECK}], accept_flagged)
+    if window:
+        log(f"the window check flags {len(window)} of {len(maps)} maps ({', '.join(window)}): their depth-mean "
+            "heavy share drifts, which no physics of a closed bed can do; the physics causes are not fitted, "
+            "the observation law is")
+        candidates = []
     if calibration is None:
         calibration = calibrate(maps, n_cells=n_cells, rtol=rtol, atol=atol, max_nfev=max_nfev,
-                                progress=progress, accept_flagged=accept_flagged)
+                                progress=progress, accept_flagged=True)
     _check_calibration(calibration, maps)
     data, base = calibration.data, calibration.fit
     assert data is not None and base is not None
@@ -194,9 +208,9 @@ def diagnose(
     verdict = selection.decide(gains, float(np.mean(held["baseline"])), misfit_of(base),
                                lambda name: misfit_of(fits[name]), gain_threshold=gain_threshold)
     ow = None
-    if open_world and selection.needs_open_world(verdict):
+    if window or (open_world and selection.needs_open_world(verdict)):
         log(f"catalogue verdict: {verdict.cause} (explained: {verdict.explained}); trying the law corrections")
-        ow = explore(data, base, held["baseline"], log=log)
+        ow = explore(data, base, held["baseline"], log=log, selected=[WINDOW_LAW] if window else None)
         verdict = selection.extend(verdict, ow.gains, float(np.mean(held["baseline"])),
                                    lambda name: misfit_of(ow.fits[name]), gain_threshold=gain_threshold)
         timing["open_world"] = ow.seconds
@@ -208,7 +222,7 @@ def diagnose(
     diag = Diagnosis(maps, data, calibration, base, fits, held, held_layers, gains, floor, noise, ev, verdict,
                      {"gain": float(gain_threshold), "excess": float(excess_threshold),
                       "coherence_alpha": float(coherence_alpha), "coherence_share": float(coherence_share)},
-                     timing, open_world=ow, velocity_check=check)
+                     timing, open_world=ow, velocity_check=check, window_flagged=window)
     _write_outputs(diag, json, report, force, log)
     return diag
 

@@ -224,8 +224,11 @@ def decide(held_out_gain: dict[str, float], baseline_held_out_mean: float, basel
            candidate_misfit: Callable[[str], Misfit], *, gain_threshold: float = GAIN_THRESHOLD) -> Verdict:
     """Name the cause from the candidates' held-out gains [-] and the misfit tests
     (``candidate_misfit(name)`` is asked for the best candidate only, when it passes)."""
-    if not held_out_gain:
-        raise ValueError("decide: no candidate was fitted")
+    if not held_out_gain:  # no catalogue cause was tried (the diagnosis of a flagged window)
+        cause = "unexplained" if baseline.structured else "none"
+        return Verdict(cause, not baseline.structured, None, 0.0, baseline, None, None, 0.0,
+                       f"no catalogue cause tried; baseline misfit {'' if baseline.structured else 'not '}"
+                       f"structured ({baseline.why})")
     order = sorted(held_out_gain, key=held_out_gain.get, reverse=True)
     best = order[0]
     runner = order[1] if len(order) > 1 else None
