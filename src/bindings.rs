@@ -119,7 +119,8 @@ fn derived(params: HashMap<String, f64>) -> PyResult<HashMap<String, f64>> {
     ]))
 }
 
-/// Velocity [m/s] and shear rate [1/s] at heights z [m], at time t [s].
+/// Velocity [m/s] (the exponential band) and shear rate [1/s] (with the shear-profile law's
+/// factor, as the fluxes use it) at heights z [m], at time t [s].
 #[pyfunction]
 fn velocity_profile<'py>(
     py: Python<'py>,
@@ -131,9 +132,10 @@ fn velocity_profile<'py>(
     let delta = p.delta_at(t);
     let z = z.as_array();
     let v: Vec<f64> = z.iter().map(|&zz| model::velocity(&p, delta, zz)).collect();
+    // the shear rate the fluxes use: the exponential's times the shear-profile law's factor
     let g: Vec<f64> = z
         .iter()
-        .map(|&zz| model::shear_rate(&p, delta, zz))
+        .map(|&zz| model::shear_rate(&p, delta, zz) * p.laws.shear_z.factor(zz / p.h))
         .collect();
     Ok((v.into_pyarray(py), g.into_pyarray(py)))
 }

@@ -104,3 +104,27 @@ def test_diagnosis_checks_its_load_law_against_the_footage():
     f = d.fits["load_dependent_shear_band"]
     wrong = compare(ShearBandLaw(0.18, -0.5, true.stderr), ({}, {}), (f.values(), f.errors()))
     assert not wrong["agrees"]
+
+
+def test_a_tabulated_profile_makes_the_models_shear_rate_the_measured_one():
+    """A linear band (what DEM shows at low load) is no exponential: with shape='tabulated' the
+    model's shear rate is the profile's -dv/dz wherever the profile measures it."""
+    import numpy as np
+
+    from granseg.model import defaults, velocity_profile
+    from granseg.velocity import VelocityProfile, measured_params
+
+    H = defaults()["H"]
+    z = (np.arange(15) + 0.5) * H / 15
+    v = 0.20 * (1 - z / H) + 0.01  # a straight line: shear rate 0.2 / H everywhere
+    prof = VelocityProfile.fitted(z, v, np.full(15, 0.002), H)
+    for shape, close in (("exponential", False), ("tabulated", True)):
+        p = measured_params(prof, [0.5], shape=shape)[0]
+        zz = np.linspace(0.1, 0.9, 9) * H
+        rate = velocity_profile(zz, **p)[1]
+        ok = np.allclose(rate, 0.2 / H, rtol=0.02)
+        assert ok == close, (shape, rate * H)
+    with pytest.raises(ValueError, match="tabulated"):
+        from granseg.velocity import ShearBandLaw
+
+        measured_params(ShearBandLaw(0.2, 0.4, {}, "law"), [0.5], shape="tabulated")

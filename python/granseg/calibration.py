@@ -288,6 +288,7 @@ def calibrate(
     errors: str = DEFAULT_ERRORS,
     view_dwell: bool = True,
     velocity: Any = None,
+    velocity_shape: str = "exponential",
     client: Any = None,
     progress: bool = True,
     accept_flagged: bool = False,
@@ -320,6 +321,9 @@ def calibrate(
         :class:`granseg.velocity.VelocityProfile` / :class:`~granseg.velocity.ShearBandLaw`).
         A profile fixes delta/H (and v1 where its fit freed it) for every experiment, a law
         fixes delta/H at each experiment's M~; the default grid is then ``k`` alone.
+    velocity_shape : ``exponential`` (the profile's fitted band) or ``tabulated`` (a profile's
+        own -dv/dz as the model's shear rate, whatever its shape; see
+        :func:`granseg.velocity.measured_params`).
     client : a ``dask.distributed.Client``; passed to ``granseg.sweep``.
     progress : print a counted line per sweep to stderr.
     accept_flagged : use maps that failed their frame-analysis quality checks
@@ -330,7 +334,7 @@ def calibrate(
         raise ValueError(f"errors = {errors!r}: choose one of {', '.join(ERRORS)}")
     maps = as_maps(campaign)
     check_accepted(maps, accept_flagged)
-    measured = _measured_velocity(velocity, maps, grid)
+    measured = _measured_velocity(velocity, maps, grid, velocity_shape, base)
     grid = check_grid({"k": DEFAULT_GRID["k"]} if measured and grid is None else grid, list(defaults()))
     keys = list(grid)
     bnds = _bounds_arrays(keys, bounds, grid)
@@ -379,7 +383,8 @@ def calibrate(
     return cal
 
 
-def _measured_velocity(velocity: Any, maps: Sequence[Map], grid: Mapping[str, Any] | None) -> dict[str, Any]:
+def _measured_velocity(velocity: Any, maps: Sequence[Map], grid: Mapping[str, Any] | None,
+                       shape: str = "exponential", base: Mapping[str, Any] | None = None) -> dict[str, Any]:
     """The model parameters a measured shear band fixes per map ({} without one); a grid that
     would fit them too is refused."""
     if velocity is None:
@@ -387,12 +392,13 @@ def _measured_velocity(velocity: Any, maps: Sequence[Map], grid: Mapping[str, An
     from granseg.velocity import ShearBandLaw, VelocityProfile, load_velocity, measured_params
 
     v = velocity if isinstance(velocity, (VelocityProfile, ShearBandLaw)) else load_velocity(velocity)
-    params = measured_params(v, [m.M_tilde for m in maps])
+    params = measured_params(v, [m.M_tilde for m in maps], shape=shape,
+                             cells=[{**(base or {}), **m.cell} for m in maps])
     clash = sorted(set(params[0]) & set(grid or {}))
     if clash:
         raise ValueError(f"grid: {', '.join(clash)} measured by the velocity file; leave it out of the grid")
     source = str(velocity) if not isinstance(velocity, (VelocityProfile, ShearBandLaw)) else type(v).__name__
-    return {"source": source, "params": params}
+    return {"source": source, "params": params, "shape": shape}
 
 
 def _usable(errors: str, n_experiments: int, log: Callable[[str], None]) -> str:

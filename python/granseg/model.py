@@ -202,7 +202,11 @@ def derived(**params: float) -> dict[str, float]:
 
 
 def velocity_profile(z: Any, t: float = 0.0, **params: float) -> tuple[np.ndarray, np.ndarray]:
-    """Velocity v(z) [m/s] and shear rate [1/s] at heights z [m] and time t [s]."""
+    """Velocity v(z) [m/s] and shear rate [1/s] at heights z [m] and time t [s].
+
+    The shear rate is the one the model's fluxes use: the exponential band's times the
+    shear-profile law's factor (``law_shear_z_*``, e.g. from a tabulated measured profile);
+    the velocity is the exponential band's."""
     z = np.ascontiguousarray(z, dtype=np.float64)
     v, g = _core.velocity_profile(_params(params), z.ravel(), float(t))
     return np.asarray(v).reshape(z.shape), np.asarray(g).reshape(z.shape)

@@ -70,6 +70,9 @@ def add_calibration_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--velocity", metavar="V.json", default=None,
                    help="a measured shear band in place of fitting delta/H: a `granseg velocity` profile or a "
                         "`granseg velocity-law --json` law")
+    p.add_argument("--velocity-shape", choices=("exponential", "tabulated"), default="exponential",
+                   help="with a measured profile: its exponential fit (default) or its own shear rate -dv/dz "
+                        "as the model's (a band of any shape)")
     p.add_argument("--no-dwell", action="store_true",
                    help="compare the model with the maps as they are, without the view's dwell (the lag "
                         "of grains staying in view, measured from the counts; on by default)")
@@ -81,7 +84,7 @@ def calibration_kwargs(args: argparse.Namespace) -> dict[str, Any]:
                 refine=not args.no_refine, per_experiment=args.per_experiment,
                 n_cells=args.n_cells, rtol=args.rtol, max_nfev=args.max_nfev,
                 errors=args.errors, accept_flagged=args.accept_flagged, view_dwell=not args.no_dwell,
-                velocity=args.velocity)
+                velocity=args.velocity, velocity_shape=args.velocity_shape)
 
 
 @contextlib.contextmanager

@@ -32,6 +32,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--velocity", metavar="V.json",
                    help="measured shear band in place of --delta-over-H: a `granseg velocity` profile, or a "
                         "`granseg velocity-law` law (then give --M-g)")
+    p.add_argument("--velocity-shape", choices=("exponential", "tabulated"), default="exponential",
+                   help="with a measured profile: its exponential fit (default) or its own shear rate -dv/dz")
     p.add_argument("--M-g", dest="M_g", type=float, help="grain mass, kg (for a velocity law's M~ = M_w / M_g)")
     p.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
                    help="any other model parameter, e.g. --set b=0.05 (repeatable)")
@@ -82,7 +84,7 @@ def _measured(args: argparse.Namespace, params: dict[str, float]) -> dict[str, f
     if isinstance(v, ShearBandLaw) and not (args.M_g and args.M_g > 0):
         raise ValueError("--velocity: a shear-band law needs the bed's grain mass --M-g (kg) > 0")
     m_tilde = params.get("M_w", defaults()["M_w"]) / args.M_g if args.M_g else float("nan")
-    return measured_params(v, [m_tilde])[0]
+    return measured_params(v, [m_tilde], shape=args.velocity_shape, cells=[params])[0]
 
 
 def run(args: argparse.Namespace) -> int:

@@ -165,13 +165,54 @@ def load_velocity(path: str | os.PathLike) -> VelocityProfile | ShearBandLaw:
                         str(path))
 
 
-def measured_params(velocity: VelocityProfile | ShearBandLaw, M_tilde: Sequence[float]) -> list[dict[str, float]]:
+SHAPES = ("exponential", "tabulated")
+
+
+def measured_params(velocity: VelocityProfile | ShearBandLaw, M_tilde: Sequence[float], *,
+                    shape: str = "exponential", cells: Sequence[Mapping[str, float]] | None = None
+                    ) -> list[dict[str, float]]:
     """The model parameters a measurement fixes for experiments of normalised loads ``M_tilde``:
     delta/H (a profile: its own for every experiment; a law: at each one's M~) and, for a
-    profile whose fit freed it, the lid's speed v1 [m/s]."""
+    profile whose fit freed it, the lid's speed v1 [m/s].
+
+    ``shape="tabulated"`` (a profile only) makes the model's shear rate the measured one, not its
+    exponential fit: the measured -dv/dz enters as the shear-profile law's factor on the
+    exponential (``law_shear_z_*``, 17 knots in z/H), so a linear or S-shaped band is modelled
+    as it is. ``cells`` gives each experiment's model constants (MODEL.md names: the plate speed
+    and bed height the factor is taken against; default MODEL.md's)."""
+    if shape not in SHAPES:
+        raise ValueError(f"velocity shape {shape!r}: choose one of {', '.join(SHAPES)}")
     if isinstance(velocity, ShearBandLaw):
+        if shape == "tabulated":
+            raise ValueError("velocity shape 'tabulated' needs a measured profile, not a shear-band law")
         return [{"delta_over_H": velocity.delta_over_H(m)} for m in M_tilde]
     out = {"delta_over_H": velocity.delta_over_H}
     if "v1" in velocity.fit.params:
         out["v1"] = max(0.0, velocity.fit.params["v1"])
-    return [dict(out) for _ in M_tilde]
+    if shape == "exponential":
+        return [dict(out) for _ in M_tilde]
+    cells = list(cells) if cells is not None else [{} for _ in M_tilde]
+    return [{**out, **_shear_factor(velocity, {**out, **cell})} for cell in cells]
+
+
+def _shear_factor(prof: VelocityProfile, params: Mapping[str, float]) -> dict[str, float]:
+    """law_shear_z_* so that the model's shear rate is the profile's -dv/dz (clipped where the
+    bed barely moves: the factor's range is the core's, |log| <= 6)."""
+    from granseg.fitting.laws import KNOTS, MAX_LOG_FACTOR
+    from granseg.model import defaults
+
+    p = {**defaults(), **params}
+    v0 = p["rpm"] * 2 * np.pi / 60 * p["D_out"] / 2
+    ok = np.isfinite(prof.v)
+    z, v = prof.z[ok], prof.v[ok]
+    if z.size < 2:
+        raise ValueError("velocity shape 'tabulated': the profile has fewer than two measured layers")
+    mid = (z[1:] + z[:-1]) / 2 / prof.H
+    rate = np.maximum(-np.diff(v) / np.diff(z), 0.0)
+    measured = np.interp(KNOTS, mid, rate)
+    delta = p["delta_over_H"]
+    reference = (v0 - p["v1"]) / (delta * p["H"]) * np.exp(-KNOTS / delta)
+    with np.errstate(divide="ignore"):
+        log_factor = np.log(measured / reference)
+    log_factor = np.clip(np.nan_to_num(log_factor, neginf=-MAX_LOG_FACTOR), -MAX_LOG_FACTOR, MAX_LOG_FACTOR)
+    return {f"law_shear_z_{j}": float(g) for j, g in enumerate(log_factor)}
