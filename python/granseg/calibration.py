@@ -318,7 +318,8 @@ def calibrate(
         (:mod:`granseg.fitting.dwell`); False compares the bed's share directly.
     velocity : a measured shear band in place of fitting delta/H: a ``granseg velocity``
         profile or ``granseg velocity-law`` law (path, or the loaded
-        :class:`granseg.velocity.VelocityProfile` / :class:`~granseg.velocity.ShearBandLaw`).
+        :class:`granseg.velocity.VelocityProfile` / :class:`~granseg.velocity.ShearBandLaw`), or a
+        folder of one profile per map, ``NAME.json`` (as ``granseg dem`` writes them).
         A profile fixes delta/H (and v1 where its fit freed it) for every experiment, a law
         fixes delta/H at each experiment's M~; the default grid is then ``k`` alone.
     velocity_shape : ``exponential`` (the profile's fitted band) or ``tabulated`` (a profile's
@@ -391,13 +392,24 @@ def _measured_velocity(velocity: Any, maps: Sequence[Map], grid: Mapping[str, An
         return {}
     from granseg.velocity import ShearBandLaw, VelocityProfile, load_velocity, measured_params
 
-    v = velocity if isinstance(velocity, (VelocityProfile, ShearBandLaw)) else load_velocity(velocity)
-    params = measured_params(v, [m.M_tilde for m in maps], shape=shape,
-                             cells=[{**(base or {}), **m.cell} for m in maps])
+    if not isinstance(velocity, (VelocityProfile, ShearBandLaw)) and Path(velocity).is_dir():
+        # one profile per map, by the map's name (what `granseg dem` writes into OUT/velocity)
+        params = []
+        for m in maps:
+            path = Path(velocity) / f"{m.name}.json"
+            if not path.is_file():
+                raise FileNotFoundError(f"{path}: no velocity profile for experiment {m.name!r} in {velocity}")
+            params += measured_params(load_velocity(path), [m.M_tilde], shape=shape, cells=[{**(base or {}),
+                                                                                             **m.cell}])
+        v = None
+    else:
+        v = velocity if isinstance(velocity, (VelocityProfile, ShearBandLaw)) else load_velocity(velocity)
+        params = measured_params(v, [m.M_tilde for m in maps], shape=shape,
+                                 cells=[{**(base or {}), **m.cell} for m in maps])
     clash = sorted(set(params[0]) & set(grid or {}))
     if clash:
         raise ValueError(f"grid: {', '.join(clash)} measured by the velocity file; leave it out of the grid")
-    source = str(velocity) if not isinstance(velocity, (VelocityProfile, ShearBandLaw)) else type(v).__name__
+    source = type(v).__name__ if isinstance(velocity, (VelocityProfile, ShearBandLaw)) else str(velocity)
     return {"source": source, "params": params, "shape": shape}
 
 

@@ -556,10 +556,12 @@ def _check_unique(d: Path, maps: list[Map]) -> None:
 
 
 def _check_layers(d: Path, maps: list[Map]) -> None:
-    first = maps[0]
-    for m in maps[1:]:
-        if m.n_layers != first.n_layers:
+    """Maps in MODEL.md's cell share one window, so one layer count (a mismatch is a mistake);
+    a map that carries its own bed height (DEM runs, other apparatus) has as many as it has."""
+    plain = [m for m in maps if "H" not in m.cell]
+    for m in plain[1:]:
+        if m.n_layers != plain[0].n_layers:
             raise MapFormatError(
-                f"{d}: mismatched layer counts: {first.path} has {first.n_layers}, "
-                f"{m.path} has {m.n_layers}"
+                f"{d}: mismatched layer counts: {plain[0].path} has {plain[0].n_layers}, "
+                f"{m.path} has {m.n_layers} (only maps that carry their own bed height H may differ)"
             )

@@ -225,8 +225,8 @@ class SweepResult:
     grid_points : list of the grid coordinates of each run
     case_index : (n_runs,) index of the case (experiment) of each run
     t : common output times (n_t,), or a list of per-run times
-    layers : (n_runs, n_t, 15) model layer maps when all runs share times,
-        else a list of (n_t_i, n_layers) arrays. With measured maps these are
+    layers : (n_runs, n_t, n_layers) model layer maps when all runs share times
+        and layer counts, else a list of (n_t_i, n_layers_i) arrays. With measured maps these are
         smoothed like the map, i.e. exactly what the RMSD compares.
     rmsd : (n_runs,) RMSD against each run's measured map, or None
     stats : solver counters per run
@@ -408,7 +408,8 @@ def sweep(
     layers, rmsd, stats = _execute(payload, n, client, progress)
 
     same_t = all(ct is case_t[0] or np.array_equal(ct, case_t[0]) for ct in case_t)
-    layers_out: Any = np.stack(layers) if same_t else layers
+    same_shape = same_t and len({np.shape(x) for x in layers}) == 1
+    layers_out: Any = np.stack(layers) if same_shape else layers
     return SweepResult(
         params=run_params,
         grid_points=run_points,

@@ -69,7 +69,8 @@ def add_calibration_options(p: argparse.ArgumentParser) -> None:
                    help="use maps that failed their frame-analysis quality checks (refused by default)")
     p.add_argument("--velocity", metavar="V.json", default=None,
                    help="a measured shear band in place of fitting delta/H: a `granseg velocity` profile or a "
-                        "`granseg velocity-law --json` law")
+                        "`granseg velocity-law --json` law, or a folder of one profile per map (NAME.json, as "
+                        "`granseg dem` writes them)")
     p.add_argument("--velocity-shape", choices=("exponential", "tabulated"), default="exponential",
                    help="with a measured profile: its exponential fit (default) or its own shear rate -dv/dz "
                         "as the model's (a band of any shape)")

@@ -63,8 +63,10 @@ def _spearman(x: Sequence[float], y: Sequence[float]) -> float:
 
 
 def _structure(data: Data, base: Fit) -> dict[str, Any]:
-    """Mean residual by normalised time bin and by layer, over all experiments."""
-    n_l = data.maps[0].n_layers
+    """Mean residual by normalised time bin and by layer, over all experiments (maps of other
+    layer counts are interpolated in z/H onto the fewest layers any map has)."""
+    n_l = min(m.n_layers for m in data.maps)
+    at = (np.arange(n_l) + 0.5) / n_l
     tb = np.zeros(N_TIME_BINS)
     tb_n = np.zeros(N_TIME_BINS)
     layer = np.zeros(n_l)
@@ -77,7 +79,8 @@ def _structure(data: Data, base: Fit) -> dict[str, Any]:
             sel = ok[bins == b]
             tb[b] += np.abs(np.where(sel, r[bins == b], 0)).sum() / max(sel.sum(), 1)
             tb_n[b] += 1
-        layer += np.nanmean(r, axis=0)
+        per_layer = np.nanmean(r, axis=0)
+        layer += np.interp(at, (np.arange(m.n_layers) + 0.5) / m.n_layers, per_layer)
         layer_n += 1
     return {"time_bins": ((np.arange(N_TIME_BINS) + 0.5) / N_TIME_BINS).tolist(),
             "mean_abs_residual_by_time": (tb / np.maximum(tb_n, 1)).tolist(),
