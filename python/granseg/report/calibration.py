@@ -107,7 +107,7 @@ def _draw_figures(camp: Any, fits: Any, cal: Any) -> list[tuple[str, str, Figure
     n_cells = int(cal.settings.get("n_cells", 180))
     for i, (m, lay) in enumerate(zip(camp, cal.model_layers, strict=True)):
         init = _initial_profile(m, params, n_cells)
-        fig = map_comparison(m, lay, H=H, rmsd=cal.rmsd[m.name], initial=init)
+        fig = map_comparison(m, lay, H=float(m.cell.get("H", H)), rmsd=cal.rmsd[m.name], initial=init)
         figs.append((_slug(i, m.name), f"{m.name}: measured and model maps", fig))
     return figs
 
