@@ -392,24 +392,23 @@ def _measured_velocity(velocity: Any, maps: Sequence[Map], grid: Mapping[str, An
         return {}
     from granseg.velocity import ShearBandLaw, VelocityProfile, load_velocity, measured_params
 
-    if not isinstance(velocity, (VelocityProfile, ShearBandLaw)) and Path(velocity).is_dir():
+    if isinstance(velocity, (VelocityProfile, ShearBandLaw)):
+        measurements = [velocity] * len(maps)
+    elif Path(velocity).is_dir():
         # one profile per map, by the map's name (what `granseg dem` writes into OUT/velocity)
-        params = []
-        for m in maps:
-            path = Path(velocity) / f"{m.name}.json"
+        paths = [Path(velocity) / f"{m.name}.json" for m in maps]
+        for m, path in zip(maps, paths, strict=True):
             if not path.is_file():
                 raise FileNotFoundError(f"{path}: no velocity profile for experiment {m.name!r} in {velocity}")
-            params += measured_params(load_velocity(path), [m.M_tilde], shape=shape, cells=[{**(base or {}),
-                                                                                             **m.cell}])
-        v = None
+        measurements = [load_velocity(path) for path in paths]
     else:
-        v = velocity if isinstance(velocity, (VelocityProfile, ShearBandLaw)) else load_velocity(velocity)
-        params = measured_params(v, [m.M_tilde for m in maps], shape=shape,
-                                 cells=[{**(base or {}), **m.cell} for m in maps])
+        measurements = [load_velocity(velocity)] * len(maps)
+    params = [measured_params(v, [m.M_tilde], shape=shape, cells=[{**(base or {}), **m.cell}])[0]
+              for v, m in zip(measurements, maps, strict=True)]
     clash = sorted(set(params[0]) & set(grid or {}))
     if clash:
         raise ValueError(f"grid: {', '.join(clash)} measured by the velocity file; leave it out of the grid")
-    source = type(v).__name__ if isinstance(velocity, (VelocityProfile, ShearBandLaw)) else str(velocity)
+    source = type(velocity).__name__ if isinstance(velocity, (VelocityProfile, ShearBandLaw)) else str(velocity)
     return {"source": source, "params": params, "shape": shape}
 
 

@@ -54,6 +54,8 @@ class DemRun:
     name: str
     sources: Sequence[str]
     notes: Sequence[str] = field(default_factory=tuple)
+    #: per-view layer tables, computed once (both maps and the profile use the bulk's)
+    _table_cache: dict[str, dict[str, np.ndarray]] = field(default_factory=dict, repr=False)
 
     # ---------------------------------------------------------------- the bed
 
@@ -144,9 +146,14 @@ class DemRun:
 
     def _tables(self, view: str) -> dict[str, np.ndarray]:
         """Per snapshot and layer: grains, heavy grains, solid volume, heavy volume [dump units],
-        summed flow speed [m/s] (the mean is the sum over the count)."""
+        summed flow speed [m/s] (the mean is the sum over the count). Computed once per view."""
         if view not in VIEWS:
             raise ValueError(f"view must be one of {list(VIEWS)}, got {view!r}")
+        if view not in self._table_cache:
+            self._table_cache[view] = self._count(view)
+        return self._table_cache[view]
+
+    def _count(self, view: str) -> dict[str, np.ndarray]:
         heavy_types = self._types_of(self.materials()[0]) if self._binary else []
         L = self.n_layers
         out = {k: np.zeros((len(self.snapshots), L)) for k in ("n", "n_heavy", "vol", "vol_heavy", "v_sum")}
