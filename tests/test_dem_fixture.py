@@ -39,12 +39,15 @@ def test_the_runs_velocity_profiles_are_bands_at_the_plate():
         assert json.loads(path.read_text())["conditions"]["view"] == "bulk"
 
 
-def test_the_chain_on_the_bulk_view_says_what_the_baseline_misses():
+def test_the_chain_on_the_bulk_view_says_what_the_baseline_misses(tmp_path):
     with warnings.catch_warnings():  # k reaches its bound: the bed barely un-mixes in 11 s
         warnings.simplefilter("ignore", CalibrationWarning)
-        r = diagnose(FIXTURE / "bulk", n_cells=48, progress=False, max_nfev=12).result
+        r = diagnose(FIXTURE / "bulk", n_cells=48, progress=False, max_nfev=12, report=tmp_path / "diag").result
     assert r["baseline"]["rmsd_mean"] > 1.5 * r["noise_floor"]  # beyond the noise
     assert r["cause"] != "none" and r["candidates"]
+    # the page sets each run's wall view beside its bulk
+    assert len(r["views"]) == 8 and (tmp_path / "diag" / "figures" / "views.png").is_file()
+    assert "<h2>The camera's view against the bulk</h2>" in (tmp_path / "diag" / "index.html").read_text()
 
 
 def test_each_runs_own_profile_goes_into_the_calibration(tmp_path):
@@ -63,3 +66,37 @@ def test_each_runs_own_profile_goes_into_the_calibration(tmp_path):
     (partial / "dem-r2-F300.json").unlink()
     with pytest.raises(FileNotFoundError, match="no velocity profile for experiment 'dem-r2-F300'"):
         calibrate(FIXTURE / "bulk", velocity=partial, n_cells=48, progress=False)
+
+
+def test_each_map_finds_its_other_view_and_the_report_shows_both(tmp_path):
+    """`granseg dem` writes a run's views as OUT/<view>/NAME.npz: a map finds its other view
+    there, and the calibration page shows both views side by side with their window checks."""
+    import shutil
+
+    from granseg.maps import views_of
+    from granseg.measure.quality import views_table
+    from granseg.report import build_report
+
+    bulk = load_campaign(FIXTURE / "bulk")
+    views = views_of(bulk.maps[0])
+    assert set(views) == {"bulk", "wall"} and views["wall"].path == FIXTURE / "wall" / bulk.maps[0].path.name
+    rows = views_table(bulk.maps)
+    assert [r["name"] for r in rows] == [m.name for m in bulk.maps]
+    assert all(r["views"]["bulk"]["drift"] == 0 and r["views"]["bulk"]["passed"] for r in rows)
+    assert all(r["views"]["wall"]["limit"] > r["views"]["bulk"]["limit"] for r in rows)  # fewer grains
+
+    names = [m.path.name for m in bulk.maps[:2]]
+    for view in ("bulk", "wall"):
+        (tmp_path / view).mkdir()
+        for name in names[: 2 if view == "bulk" else 1]:  # the second run has no wall view here
+            shutil.copy(FIXTURE / view / name, tmp_path / view / name)
+    camp = load_campaign(tmp_path / "bulk")
+    assert [bool(views_of(m)) for m in camp.maps] == [True, False]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", CalibrationWarning)
+        page = build_report(camp, tmp_path / "report", refine=False, n_cells=48, progress=False,
+                            grid={"k": [0.5, 1.0], "delta_over_H": [0.2, 0.3]})
+    data = json.loads((tmp_path / "report" / "report.json").read_text())
+    assert [r["name"] for r in data["views"]] == [camp.maps[0].name]
+    assert "<h2>The camera's view against the bulk</h2>" in page.read_text()
+    assert (tmp_path / "report" / "figures" / "views.png").is_file()

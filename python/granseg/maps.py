@@ -43,6 +43,7 @@ __all__ = [
     "save_map",
     "load_map",
     "load_campaign",
+    "views_of",
     "check_accepted",
     "moving_average",
 ]
@@ -510,6 +511,27 @@ def load_map(path: str | os.PathLike) -> Map:
         warnings.warn(f"{p}: this map failed its frame-analysis quality checks: {', '.join(m.failed_checks)}",
                       QualityWarning, stacklevel=2)
     return m
+
+
+def views_of(m: Map) -> dict[str, Map]:
+    """Every view of the run map ``m`` shows, by view name (``m`` itself included), or {} if none
+    lies beside it. ``granseg dem`` writes a run's views as ``OUT/<view>/NAME.npz``, so a map in a
+    folder named after its view finds its siblings in the neighbouring view folders; a sibling that
+    is not a readable map is passed over (the map asked about is what the caller loaded)."""
+    if m.view is None or m.path is None or m.path.parent.name != m.view:
+        return {}
+    found = {m.view: m}
+    for view in VIEWS:
+        other = m.path.parent.parent / view / m.path.name
+        if view == m.view or not other.is_file():
+            continue
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", QualityWarning)  # the window check is what is compared
+                found[view] = load_map(other)
+        except MapFormatError:
+            continue
+    return found if len(found) > 1 else {}
 
 
 def check_accepted(maps: Iterator[Map] | list[Map], accept_flagged: bool) -> None:

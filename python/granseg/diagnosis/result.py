@@ -9,7 +9,10 @@ used, the ``evidence`` and the run's ``settings``; the ``departure`` (the law
 that departs, its fitted shape with a 95 % band, a sentence, the held-out
 gain, a literature form where one fits; null unless ``cause`` is
 ``new_law``) and the ``open_world`` (every law correction tried, or null when
-the catalogue sufficed).
+the catalogue sufficed). Present only when they apply: ``velocity_check``
+(the fitted shear band against a measured one), ``window_check`` (maps whose
+view fails the depth-mean check) and ``views`` (each run's window check per
+view, where its other view lies beside the map: issue 17).
 """
 
 from __future__ import annotations
@@ -20,6 +23,7 @@ import numpy as np
 
 from granseg.diagnosis.selection import Misfit
 from granseg.fitting import REGISTRY, Fit, laws
+from granseg.measure.quality import views_table
 
 if TYPE_CHECKING:
     from granseg.diagnosis.run import Diagnosis
@@ -126,6 +130,7 @@ class DiagnosisJSON(TypedDict, total=False):
     open_world: dict[str, Any] | None
     velocity_check: dict[str, Any] | None
     window_check: dict[str, Any]
+    views: list[dict[str, Any]]
     experiments: list[dict[str, Any]]
     settings: dict[str, Any]
     report: str
@@ -276,6 +281,9 @@ def build_result(d: Diagnosis) -> DiagnosisJSON:
     )
     if d.velocity_check is not None:
         out["velocity_check"] = d.velocity_check
+    views = views_table(d.maps)
+    if views:
+        out["views"] = views
     if d.window_flagged:
         out["summary"] = (f"The window check flags {len(d.window_flagged)} of {d.data.n} maps: their depth-mean "
                           "heavy share drifts, which a closed bed cannot do, so the view was examined instead "

@@ -51,7 +51,7 @@ import numpy as np
 from granseg.errors import QualityWarning
 from granseg.measure.classify import AMBIGUOUS, MARGIN, interface_labels
 
-__all__ = ["Check", "Quality", "QualityWarning", "assess", "depth_mean_check"]
+__all__ = ["Check", "Quality", "QualityWarning", "assess", "depth_mean_check", "window_check_of", "views_table"]
 
 VERSION = 1
 
@@ -252,6 +252,37 @@ def depth_mean_check(n: np.ndarray, n_heavy: np.ndarray, c0: float) -> Check:
     return _check("heavy_share_conserved", abs(share_end - c0), tol, "<=",
                   f"|last third's depth-mean heavy share {share_end:.3f} - c0 {c0:.3f}| "
                   f"({per_frame:.0f} grains a frame)")
+
+
+def window_check_of(m: Any) -> Check | None:
+    """The window check of map ``m``: the one its quality record holds (a DEM map's is judged
+    against the bulk's share by count), else computed from its counts against c0; None for a
+    map with neither."""
+    if m.quality:
+        for c in Quality.from_json(m.quality).checks:
+            if c.name == "heavy_share_conserved":
+                return c
+    if m.n is None or m.n_heavy is None:
+        return None
+    good = m.n.sum(axis=1) > 0
+    return depth_mean_check(m.n[good], m.n_heavy[good], m.c0) if good.any() else None
+
+
+def views_table(maps: Any) -> list[dict[str, Any]]:
+    """For every map whose run has another view beside it (:func:`granseg.maps.views_of`): each
+    view's window check as ``{"name", "views": {view: {"drift", "limit", "passed"} | None}}``."""
+    from granseg.maps import views_of
+
+    rows = []
+    for m in maps:
+        views = views_of(m)
+        if not views:
+            continue
+        checks = {v: window_check_of(views[v]) for v in sorted(views)}
+        rows.append({"name": m.name, "views": {
+            v: None if c is None else {"drift": float(c.value), "limit": float(c.limit), "passed": bool(c.passed)}
+            for v, c in checks.items()}})
+    return rows
 
 
 def _layer_cv(n: np.ndarray) -> np.ndarray:

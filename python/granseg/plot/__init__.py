@@ -11,7 +11,8 @@ style (:data:`STYLE`); :func:`save_figure` writes it as ``STEM.png`` and
   ``simulation``);
 - :mod:`~granseg.plot.diagnosis`: the evidence of a diagnosis (``residual_maps``,
   ``covariates``, ``candidates``, ``gain``, ``before_after``; by name in
-  ``FIGURES``). Loaded on first use: it needs the solver, the rest does not.
+  ``FIGURES``). Loaded on first use: it needs the solver, the rest does not;
+- :mod:`~granseg.plot.views`: a run's camera view against its bulk (``view_comparison``).
 
 Example::
 
@@ -34,6 +35,7 @@ from granseg.plot.calibration import (
     rmsd_grid,
     simulation,
 )
+from granseg.plot.views import view_comparison
 
 _DIAGNOSIS = ("FIGURES", "residual_maps", "covariates", "candidates", "gain", "before_after")
 
@@ -50,6 +52,7 @@ __all__ = [
     "rmsd_grid",
     "profiles",
     "simulation",
+    "view_comparison",
     *_DIAGNOSIS,
 ]
 

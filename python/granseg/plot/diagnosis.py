@@ -2,7 +2,7 @@
 
 Each function takes the diagnosis and returns a :class:`matplotlib.figure.Figure`
 in granseg's style (or None when it does not apply: ``departure`` only when
-the law corrections were tried); :data:`FIGURES` maps each figure's name to its function,
+the law corrections were tried, ``views`` only when a run's other view lies beside its map); :data:`FIGURES` maps each figure's name to its function,
 in the order the diagnosis report shows them.
 
 Example::
@@ -23,12 +23,14 @@ from matplotlib.ticker import FixedLocator, NullFormatter, NullLocator, ScalarFo
 
 from granseg.fitting.causes import M_TILDE_REF
 from granseg.model import defaults
+from granseg.maps import views_of
 from granseg.plot.base import C_LABEL, H_LABEL, STYLE, T_LABEL, map_edges, new_figure, style
+from granseg.plot.views import view_comparison
 
 if TYPE_CHECKING:
     from granseg.diagnosis.run import Diagnosis
 
-__all__ = ["FIGURES", "before_after", "candidates", "covariates", "departure", "gain", "residual_maps"]
+__all__ = ["FIGURES", "before_after", "candidates", "covariates", "departure", "gain", "residual_maps", "views"]
 
 PAIR_COLOURS: list[str] = STYLE["axes.prop_cycle"].by_key()["color"]
 
@@ -304,6 +306,12 @@ def departure(d: Diagnosis) -> Figure | None:
 
 
 #: The diagnosis figures by name, in the order the report shows them.
+def views(d: Diagnosis) -> Figure | None:
+    """Each map's camera view against its bulk, where the run's other view lies beside it."""
+    runs = [v for v in map(views_of, d.maps) if v]
+    return view_comparison(runs) if runs else None
+
+
 FIGURES: dict[str, Callable[[Diagnosis], Figure | None]] = {
     "residual_maps": residual_maps,
     "covariates": covariates,
@@ -311,4 +319,5 @@ FIGURES: dict[str, Callable[[Diagnosis], Figure | None]] = {
     "gain": gain,
     "before_after": before_after,
     "departure": departure,
+    "views": views,
 }

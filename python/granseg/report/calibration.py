@@ -33,14 +33,17 @@ from granseg import __version__
 from granseg._io import atomic_write, prepare_output_dir, save_json
 from granseg.calibration import calibrate
 from granseg.fit import fit_campaign
-from granseg.maps import load_campaign
+from granseg.maps import load_campaign, views_of
+from granseg.measure.quality import views_table
 from granseg.model import defaults, simulate
-from granseg.plot import bottom_fits, laws, map_comparison, profiles, rmsd_grid
-from granseg.report.html import esc, figures, num, page, pm, save_figures, table
+from granseg.plot import bottom_fits, laws, map_comparison, profiles, rmsd_grid, view_comparison
+from granseg.report.html import esc, figures, num, page, pm, save_figures, table, views_section
 
 __all__ = ["OUTPUTS", "build_report", "report_data", "render"]
 
 OUTPUTS = ("index.html", "report.json", "figures")
+VIEWS_CAPTION = ("Each run's camera view against its bulk: both maps, their difference, and each view's "
+                 "depth-mean heavy share with the band its counts allow (the last third, shaded, is judged)")
 
 
 def _slug(i: int, name: str) -> str:
@@ -102,14 +105,35 @@ def _draw_figures(camp: Any, fits: Any, cal: Any) -> list[tuple[str, str, Figure
                      rmsd_grid(cal.grid_points, cal.grid_mean, best=cal.best if cal.refined else None,
                                stderr=cal.stderr if cal.refined else None)))
     dgrid = cal.settings["grid"].get("delta_over_H", [])
-    figs.append(("profiles", "Velocity and shear-rate profiles of the calibrated model",
-                 profiles(params, deltas=dgrid, delta_err=_finite(cal.stderr.get("delta_over_H")))))
+    cell, differ = _shared_cell(camp)
+    caption = "Velocity and shear-rate profiles of the calibrated model"
+    if differ:
+        caption += f" (in the first map's cell: the maps' {', '.join(differ)} differ)"
+    figs.append(("profiles", caption, profiles({**params, **cell}, deltas=dgrid,
+                                                 delta_err=_finite(cal.stderr.get("delta_over_H")))))
     n_cells = int(cal.settings.get("n_cells", 180))
     for i, (m, lay) in enumerate(zip(camp, cal.model_layers, strict=True)):
         init = _initial_profile(m, params, n_cells)
         fig = map_comparison(m, lay, H=float(m.cell.get("H", H)), rmsd=cal.rmsd[m.name], initial=init)
         figs.append((_slug(i, m.name), f"{m.name}: measured and model maps", fig))
+    runs = [v for v in map(views_of, camp) if v]
+    if runs:
+        figs.append(("views", VIEWS_CAPTION, view_comparison(runs)))
     return figs
+
+
+def _shared_cell(camp: Any) -> tuple[dict[str, float], list[str]]:
+    """The cell the maps carry (the first map's; a DEM campaign's maps share most of it), and the
+    keys on which the maps differ by more than 5 % (a DEM bed's height varies by a few per cent
+    with its load; that does not change the figure)."""
+    maps = list(camp)
+    cell = dict(maps[0].cell) if maps else {}
+
+    def same(a: float | None, b: float | None) -> bool:
+        return a is not None and b is not None and bool(np.isclose(a, b, rtol=0.05))
+
+    differ = sorted({k for m in maps for k in {*cell, *m.cell} if not same(m.cell.get(k), cell.get(k))})
+    return cell, differ
 
 
 def _finite(x: Any) -> float | None:
@@ -126,6 +150,7 @@ def report_data(camp: Any, fits: Any, cal: Any, figures: list[dict[str, str]]) -
         "fits": fits.to_dict(),
         "calibration": cal.to_json(),
         "model": {k: v for k, v in _model_constants(cal).items() if isinstance(v, int | float)},
+        "views": views_table(camp),
         "figures": figures,
     }
 
@@ -230,5 +255,5 @@ def render(data: Mapping[str, Any], out: Path) -> str:
         f"{esc(data['campaign'])}; granseg {esc(data['granseg_version'])}, {esc(data['created'])}. "
         "All numbers are in report.json beside this page.</p>",
         _summary(data), _experiments(data), _factorial(data), _per_experiment(data), _laws(data),
-        figures(data["figures"], out),
+        views_section(data.get("views", [])), figures(data["figures"], out),
     ]))

@@ -25,7 +25,7 @@ from typing import TYPE_CHECKING, Any
 
 from granseg._io import atomic_write, prepare_output_dir, save_json
 from granseg.plot.diagnosis import FIGURES
-from granseg.report.html import esc, figures, num, page, save_figures, table
+from granseg.report.html import esc, figures, num, page, save_figures, table, views_section
 
 if TYPE_CHECKING:
     from granseg.diagnosis.run import Diagnosis
@@ -48,6 +48,9 @@ CAPTIONS = {
                  "with its 95 % band (cluster-robust over experiments) and, dashed, a known form where one "
                  "lies inside the band. Right: every law of the model corrected in turn; the best in sample "
                  "are refitted without each experiment and scored on it.",
+    "views": "Each run's camera view against its bulk: both maps, their difference, and each view's depth-mean "
+             "heavy share with the band its counts allow (the last third, shaded, is judged). A view outside "
+             "its band does not sample the bed fairly.",
 }
 
 
@@ -128,5 +131,6 @@ def render(r: Mapping[str, Any], figs: Sequence[Mapping[str, str]], out: Path) -
         table(["cause", "fitted extension", "mean RMSD", "held-out RMSD", "held-out gain"], rows, best, left=2),
         _open_world_section(r),
         _velocity_section(r),
+        views_section(r.get("views", [])),
         figures(figs, out, heading="Evidence"),
     ]))

@@ -20,7 +20,7 @@ from matplotlib.figure import Figure
 
 from granseg.plot.base import save_figure
 
-__all__ = ["CSS", "SCRIPT", "esc", "num", "pm", "table", "figures", "save_figures", "page"]
+__all__ = ["CSS", "SCRIPT", "esc", "num", "pm", "table", "figures", "save_figures", "page", "views_section"]
 
 CSS = """
 body{font:15px/1.45 system-ui,-apple-system,"Segoe UI",sans-serif;color:#1d1d1f;margin:0;background:#fafafa}
@@ -104,6 +104,28 @@ def figures(entries: Sequence[Mapping[str, str]], out: Path, heading: str = "Fig
             f'src="data:image/png;base64,{data}"><figcaption>Figure {n}. {esc(fig["caption"])} '
             f'(<a href="{esc(fig["pdf"])}">PDF</a>, <a href="{esc(fig["png"])}">PNG</a>)</figcaption></figure>')
     return "".join(parts)
+
+
+def views_section(rows: Sequence[Mapping[str, Any]]) -> str:
+    """The camera's view against the bulk: each run's window check per view
+    (:func:`granseg.measure.quality.views_table`); empty when no run has two views."""
+    if not rows:
+        return ""
+    views = sorted({v for r in rows for v in r["views"]})
+
+    def cell(c: Mapping[str, Any] | None) -> str:
+        if c is None:
+            return "no counts"
+        verdict = "fair" if c["passed"] else "<b>flagged</b>"
+        return f"{num(c['drift'], '.3f')} / {num(c['limit'], '.3f')} {verdict}"
+
+    body = [[esc(r["name"]), *(cell(r["views"].get(v)) for v in views)] for r in rows]
+    flagged = ["best" if any(c and not c["passed"] for c in r["views"].values()) else "" for r in rows]
+    return ("<h2>The camera's view against the bulk</h2><p>Runs whose other view lies beside them. A closed bed "
+            "keeps its depth-mean heavy share, so a view that samples it fairly does too: each cell gives the "
+            "last third's drift from the initial share, the limit its counts allow, and the verdict. The "
+            "figure <i>views</i> shows the maps side by side.</p>"
+            + table(["run", *(f"{esc(v)} view: drift / limit" for v in views)], body, flagged, left=1))
 
 
 def page(title: str, body: str) -> str:
