@@ -22,8 +22,8 @@ from matplotlib.figure import Figure
 from matplotlib.ticker import FixedLocator, NullFormatter, NullLocator, ScalarFormatter
 
 from granseg.fitting.causes import M_TILDE_REF
-from granseg.model import defaults
 from granseg.maps import views_of
+from granseg.model import defaults
 from granseg.plot.base import C_LABEL, H_LABEL, STYLE, T_LABEL, map_edges, new_figure, style
 from granseg.plot.views import view_comparison
 

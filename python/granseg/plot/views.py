@@ -19,8 +19,8 @@ from typing import Any
 import numpy as np
 from matplotlib.figure import Figure
 
-from granseg.measure.quality import window_check_of
 from granseg.constants import D_P, N_LAYERS
+from granseg.measure.quality import window_check_of
 from granseg.plot.base import C_LABEL, H_LABEL, STYLE, T_LABEL, map_edges, new_figure, style
 
 __all__ = ["view_comparison", "depth_mean"]
