@@ -121,9 +121,12 @@ def test_a_tabulated_profile_makes_the_models_shear_rate_the_measured_one():
     for shape, close in (("exponential", False), ("tabulated", True)):
         p = measured_params(prof, [0.5], shape=shape)[0]
         zz = np.linspace(0.1, 0.9, 9) * H
-        rate = velocity_profile(zz, **p)[1]
+        vel, rate = velocity_profile(zz, **p)
         ok = np.allclose(rate, 0.2 / H, rtol=0.02)
         assert ok == close, (shape, rate * H)
+        if close:  # the velocity is the one that shear rate gives: the measured straight line
+            v_at = 0.20 * (1 - zz / H) + 0.01
+            assert np.allclose(vel - vel[0], v_at - v_at[0], atol=0.004), vel
     with pytest.raises(ValueError, match="tabulated"):
         from granseg.velocity import ShearBandLaw
 

@@ -205,11 +205,24 @@ def velocity_profile(z: Any, t: float = 0.0, **params: float) -> tuple[np.ndarra
     """Velocity v(z) [m/s] and shear rate [1/s] at heights z [m] and time t [s].
 
     The shear rate is the one the model's fluxes use: the exponential band's times the
-    shear-profile law's factor (``law_shear_z_*``, e.g. from a tabulated measured profile);
-    the velocity is the exponential band's."""
+    shear-profile law's factor (``law_shear_z_*``, e.g. from a tabulated measured profile).
+    The velocity is the one that shear rate gives, v0 at the plate minus its integral up to
+    z (the exponential band itself when the law is not set)."""
     z = np.ascontiguousarray(z, dtype=np.float64)
-    v, g = _core.velocity_profile(_params(params), z.ravel(), float(t))
+    full = _params(params)
+    v, g = _core.velocity_profile(full, z.ravel(), float(t))
+    if any(k.startswith("law_shear_z_") and float(params[k]) != 0.0 for k in params):
+        v = _integrated_velocity(full, z.ravel(), float(t))
     return np.asarray(v).reshape(z.shape), np.asarray(g).reshape(z.shape)
+
+
+def _integrated_velocity(full: dict[str, float], z: np.ndarray, t: float) -> np.ndarray:
+    """v(z) = v(0) - integral_0^z of the model's shear rate, on a fine grid (trapezoids)."""
+    top = max(float(np.max(z, initial=0.0)), 0.0)
+    fine = np.linspace(0.0, top, 4001) if top > 0 else np.zeros(1)
+    v_fine, g_fine = (np.asarray(a) for a in _core.velocity_profile(full, fine, t))
+    drop = np.concatenate([[0.0], np.cumsum(0.5 * (g_fine[1:] + g_fine[:-1]) * np.diff(fine))])
+    return v_fine[0] - np.interp(z, fine, drop)
 
 
 # --------------------------------------------------------------------- sweep
