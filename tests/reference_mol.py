@@ -1,8 +1,8 @@
 """An independent, deliberately simple method-of-lines implementation of
-MODEL.md in numpy + scipy, used to cross-check the Rust core.
+docs/model.md in numpy + scipy, used to cross-check the Rust core.
 
-It shares no code with granseg: its own constants (typed in from MODEL.md),
-central face fluxes F = -w c - D dc/dz exactly as MODEL.md writes them (no
+It shares no code with granseg: its own constants (typed in from docs/model.md),
+central face fluxes F = -w c - D dc/dz exactly as docs/model.md writes them (no
 upwinding, no limiter, fine for the cell Peclet numbers of the tested cases),
 point values of the quintic step as the initial condition, and scipy's BDF
 with a banded Jacobian sparsity pattern.

@@ -44,7 +44,7 @@ def test_a_campaign_in_another_cell_calibrates_back_to_its_truth(cell_campaign):
 
 
 def test_the_cell_matters(cell_campaign):
-    """The same maps read as if made in MODEL.md's cell fit worse and elsewhere: the cell is used."""
+    """The same maps read as if made in docs/model.md's cell fit worse and elsewhere: the cell is used."""
     stripped = [granseg.Map.from_arrays({**m.to_arrays(), "H": None, "rpm": None}) for m in cell_campaign.maps]
     assert stripped[0].cell == {}
     with_cell = calibrate(cell_campaign, n_cells=N_CELLS, progress=False, view_dwell=False)

@@ -140,7 +140,7 @@ def test_bad_campaign_names_the_problem(tmp_path):
 
 
 def test_dropped_frames_are_skipped_without_warnings():
-    """Frames with no reading (DATA.md: NaN rows) are left out of every step, silently."""
+    """Frames with no reading (docs/formats.md: NaN rows) are left out of every step, silently."""
     import warnings
 
     maps = campaign(conditions=COND[:3], noise="dropped_frames", seed=8)

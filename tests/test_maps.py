@@ -1,4 +1,4 @@
-"""Map and campaign files (DATA.md): round trip, validation, moving average."""
+"""Map and campaign files (docs/formats.md): round trip, validation, moving average."""
 
 from __future__ import annotations
 

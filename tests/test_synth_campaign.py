@@ -1,4 +1,4 @@
-"""Virtual campaigns: DATA.md format, the paper's conditions, realistic counting noise, effects."""
+"""Virtual campaigns: docs/formats.md format, the paper's conditions, realistic counting noise, effects."""
 
 from __future__ import annotations
 

@@ -52,7 +52,7 @@ def test_every_process_writes_valid_maps_and_is_recorded(tmp_path):
         proc = NOISE_PROCESSES[noise] if isinstance(noise, str) else noise
         out = tmp_path / proc.name
         maps = campaign(out, conditions=SMALL, seed=2, duration=600.0, noise=noise)
-        camp = load_campaign(out)  # DATA.md validation on reading back
+        camp = load_campaign(out)  # docs/formats.md validation on reading back
         assert camp.names == sorted(m.name for m in maps)
         truth = json.loads((out / "campaign.json").read_text())
         assert truth["noise"] == proc.record() and truth["noise"]["name"] == proc.name

@@ -14,6 +14,6 @@ __all__ = ["N_LAYERS", "D_P"]
 #: high: N_LAYERS * D_P is the bed height H).
 N_LAYERS = 15
 
-#: Sphere diameter D_p [m] (MODEL.md; the core's default ``D_p``): the height
+#: Sphere diameter D_p [m] (docs/model.md; the core's default ``D_p``): the height
 #: of one map layer, so layer j's centre is at z = (j + 0.5) * D_P.
 D_P = 6.0e-3

@@ -43,11 +43,11 @@ class FlaggedMapError(GransegError, ValueError):
 
 
 class MapFormatError(GransegError, ValueError):
-    """A map file or map data break the DATA.md format (names file and field)."""
+    """A map file or map data break the docs/formats.md format (names file and field)."""
 
 
 class DemFormatError(GransegError, ValueError):
-    """A DEM dump or its config cannot be read as DATA.md says (names file, snapshot or key)."""
+    """A DEM dump or its config cannot be read as docs/formats.md says (names file, snapshot or key)."""
 
 
 class OutputExistsError(GransegError, FileExistsError):

@@ -1,4 +1,4 @@
-"""Curve fits of the paper's analyses (MODEL.md), by scipy.optimize.least_squares.
+"""Curve fits of the paper's analyses (docs/model.md), by scipy.optimize.least_squares.
 
 * :func:`fit_tanh` fits the bottom-layer series with
   ``f(t) = A/2 [1 - tanh(-(t - t0) / (tau - t0))]``: ``A`` [-] the final
@@ -8,7 +8,7 @@
 * :func:`fit_tau` fits the exponential law
   ``tau(delta_R) = tau_1 exp(-lambda (delta_R - 1))`` (``tau_1`` [s], ``lambda`` [-]).
 * :func:`fit_campaign` does all three for the maps of a campaign.
-* :func:`fit_shear_band` fits a measured velocity profile with MODEL.md's
+* :func:`fit_shear_band` fits a measured velocity profile with docs/model.md's
   ``v(z) = v1 + (v0 - v1) exp(-z / delta)`` (``v0``, ``v1`` [m/s], ``delta_over_H`` [-]).
 * :func:`fit_shear_band_law` fits ``delta/H = (delta/H)_ref (M~ / M~_ref)^(-exponent)``
   over several beds: the diagnosis' ``load_dependent_shear_band`` law, so the two compare.
@@ -104,7 +104,7 @@ MIN_EFFECTIVE_BLOCKS = 1.2
 
 
 def tanh_curve(t: Any, A: float, t0: float, tau: float) -> np.ndarray:
-    """Bottom-concentration law f(t) [-] at times ``t`` [s] (MODEL.md); needs tau > t0."""
+    """Bottom-concentration law f(t) [-] at times ``t`` [s] (docs/model.md); needs tau > t0."""
     t = np.asarray(t, dtype=float)
     return 0.5 * A * (1.0 - np.tanh(-(t - t0) / (tau - t0)))
 
@@ -120,7 +120,7 @@ def tau_law(delta_R: Any, tau_1: float, lam: float) -> np.ndarray:
 
 
 def shear_band_velocity(z: Any, v0: float, v1: float, delta: float) -> np.ndarray:
-    """MODEL.md's velocity profile v(z) = v1 + (v0 - v1) exp(-z / delta) [m/s] at heights ``z`` [m]."""
+    """docs/model.md's velocity profile v(z) = v1 + (v0 - v1) exp(-z / delta) [m/s] at heights ``z`` [m]."""
     return v1 + (v0 - v1) * np.exp(-np.asarray(z, dtype=float) / delta)
 
 

@@ -1,4 +1,4 @@
-"""Measured concentration maps and campaigns: the ``.npz`` formats of DATA.md.
+"""Measured concentration maps and campaigns: the ``.npz`` formats of docs/formats.md.
 
 A *map* is one experiment: the heavy share ``c`` [-] of each horizontal layer
 (``z`` [m], layer centres above the bottom wall) at each time ``t`` [s], plus
@@ -50,8 +50,8 @@ __all__ = [
 
 REQUIRED = ("c", "t", "z", "name", "heavy", "light", "rho_h", "rho_l", "c0", "M_g", "M_w")
 OPTIONAL = ("n", "n_heavy", "c_raw", "fps", "smoothing_frames", "quality", "view")
-# A cell that is not MODEL.md's (another apparatus, a DEM run) names its own
-# geometry, speed and material constants by their MODEL.md names (SI units).
+# A cell that is not docs/model.md's (another apparatus, a DEM run) names its own
+# geometry, speed and material constants by their docs/model.md names (SI units).
 CELL_KEYS = ("H", "D_p", "D_in", "D_out", "rpm", "v1", "phi_s", "g")
 VIEWS = ("wall", "bulk")
 
@@ -141,8 +141,8 @@ class Conditions:
     c0: float
     M_g: float
     M_w: float
-    #: the experiment's own cell constants by MODEL.md name (SI; DATA.md's optional
-    #: geometry keys): empty for MODEL.md's cell. Every model run made for it uses them.
+    #: the experiment's own cell constants by docs/model.md name (SI; docs/formats.md's optional
+    #: geometry keys): empty for docs/model.md's cell. Every model run made for it uses them.
     cell: Mapping[str, float] = field(default_factory=dict, kw_only=True, compare=False)
 
     @property
@@ -172,8 +172,8 @@ class Map(Conditions):
     ``smoothing_frames`` (width of the moving average already in ``c``),
     ``quality`` (the frame analysis' checks, a JSON object as text, or None),
     ``view`` (``wall`` or ``bulk``: what the layers sample; None = wall),
-    ``cell`` (the map's own geometry and constants by MODEL.md name, SI units,
-    e.g. ``{"H": 0.066, "rpm": 40.0}``; empty = MODEL.md's cell).
+    ``cell`` (the map's own geometry and constants by docs/model.md name, SI units,
+    e.g. ``{"H": 0.066, "rpm": 40.0}``; empty = docs/model.md's cell).
     """
 
     c: np.ndarray
@@ -190,7 +190,7 @@ class Map(Conditions):
     extra: Mapping[str, np.ndarray] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        """Validate (a Map built in code obeys DATA.md like one read from a file)."""
+        """Validate (a Map built in code obeys docs/formats.md like one read from a file)."""
         source = str(self.path) if self.path is not None else f"map {self.name!r}"
         for key, value in _validate(source, self.to_arrays()).items():
             object.__setattr__(self, key, value)
@@ -198,7 +198,7 @@ class Map(Conditions):
     @classmethod
     def from_arrays(cls, arrays: Mapping[str, Any], path: Path | None = None,
                     extra: Mapping[str, Any] | None = None) -> Map:
-        """A map from DATA.md's flat keys, as a file holds them (the cell constants as
+        """A map from docs/formats.md's flat keys, as a file holds them (the cell constants as
         top-level keys ``H``, ``rpm``, ...; a key set to None is absent)."""
         source = str(path) if path is not None else f"map {arrays.get('name')!r}"
         return cls(**_validate(source, arrays), path=path, extra=dict(extra or {}))
@@ -233,7 +233,7 @@ class Map(Conditions):
         return {"c": self.c, "t": self.t, "smoothing_frames": self.smoothing_frames}
 
     def to_arrays(self) -> dict[str, Any]:
-        """Every DATA.md key of this map (optional ones only when present)."""
+        """Every docs/formats.md key of this map (optional ones only when present)."""
         out: dict[str, Any] = {k: getattr(self, k) for k in REQUIRED}
         for key in OPTIONAL:
             value = getattr(self, key)
@@ -348,10 +348,10 @@ def _counts(source: str, key: str, value: Any, shape: tuple[int, ...]) -> np.nda
 
 
 def _validate(source: str, raw: Mapping[str, Any]) -> dict[str, Any]:
-    """Check every DATA.md field of ``raw``; return clean typed values."""
+    """Check every docs/formats.md field of ``raw``; return clean typed values."""
     for key in REQUIRED:
         if key not in raw:
-            raise _fail(source, key, "missing (required by DATA.md)")
+            raise _fail(source, key, "missing (required by docs/formats.md)")
     out = _validate_arrays(source, raw)
     out.update(_validate_metadata(source, raw))
     out.update(_validate_optional(source, raw, out["c"].shape))
@@ -420,7 +420,7 @@ def _validate_optional(source: str, raw: Mapping[str, Any], shape: tuple[int, ..
 
 
 def _cell(source: str, raw: Mapping[str, Any]) -> dict[str, float]:
-    """The map's own cell constants (DATA.md), range-checked as the core checks them."""
+    """The map's own cell constants (docs/formats.md), range-checked as the core checks them."""
     cell = {k: _scalar(source, k, raw[k], 0.0, np.inf, k != "v1") for k in CELL_KEYS if raw.get(k) is not None}
     if cell.get("phi_s", 0.0) > 1.0:
         raise _fail(source, "phi_s", f"value {cell['phi_s']} outside (0, 1]")
@@ -473,10 +473,10 @@ def save_map(
 ) -> Path:
     """Validate a map and write it to ``path`` (``.npz``) atomically.
 
-    Units as in DATA.md: ``c`` [-] (n_t, n_layers), ``t`` [s], ``z`` [m],
+    Units as in docs/formats.md: ``c`` [-] (n_t, n_layers), ``t`` [s], ``z`` [m],
     densities [kg/m^3], masses [kg]. ``optional`` may hold ``n``,
     ``n_heavy``, ``c_raw``, ``fps`` [1/s], ``smoothing_frames``, ``quality``,
-    ``view`` and the cell keys of DATA.md (``H``, ``D_p``, ...); any other
+    ``view`` and the cell keys of docs/formats.md (``H``, ``D_p``, ...); any other
     key is refused (so a typo is not silently dropped). Refuses to replace an
     existing file unless ``force``. Returns the path written.
     """
@@ -493,7 +493,7 @@ def save_map(
 
 
 def load_map(path: str | os.PathLike) -> Map:
-    """Read and validate one map ``.npz`` (DATA.md); raise MapFormatError naming the field.
+    """Read and validate one map ``.npz`` (docs/formats.md); raise MapFormatError naming the field.
 
     Unknown keys are kept in ``Map.extra`` and otherwise ignored.
     """
@@ -578,7 +578,7 @@ def _check_unique(d: Path, maps: list[Map]) -> None:
 
 
 def _check_layers(d: Path, maps: list[Map]) -> None:
-    """Maps in MODEL.md's cell share one window, so one layer count (a mismatch is a mistake);
+    """Maps in docs/model.md's cell share one window, so one layer count (a mismatch is a mistake);
     a map that carries its own bed height (DEM runs, other apparatus) has as many as it has."""
     plain = [m for m in maps if "H" not in m.cell]
     for m in plain[1:]:

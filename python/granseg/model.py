@@ -1,7 +1,7 @@
 """The segregation-diffusion model: one run, the steady state, sweeps.
 
 Thin, validating wrappers over the Rust core (``granseg._core``). Every model
-parameter of MODEL.md is a keyword with its default from :func:`defaults`
+parameter of docs/model.md is a keyword with its default from :func:`defaults`
 (SI units: densities kg/m^3, lengths m, speeds m/s, times s, loads kg).
 """
 
@@ -33,12 +33,12 @@ __all__ = [
     "velocity_profile",
 ]
 
-#: Material densities of MODEL.md, kg/m^3 (from the core, never copied).
+#: Material densities of docs/model.md, kg/m^3 (from the core, never copied).
 MATERIALS: dict[str, float] = dict(_core.materials())
 _DEFAULTS: dict[str, float] = dict(_core.defaults())
-#: Names of every model parameter, in MODEL.md's notation.
+#: Names of every model parameter, in docs/model.md's notation.
 PARAMETERS: tuple[str, ...] = tuple(sorted(_DEFAULTS))
-#: Knots of the open-world law corrections (``law_flux_c_0`` ...; default 0, i.e. MODEL.md):
+#: Knots of the open-world law corrections (``law_flux_c_0`` ...; default 0, i.e. docs/model.md):
 #: log-factors of the segregation speed by c, the diffusivity by z/H and by t/law_time, the
 #: shear rate by z/H and both rates by t/law_time, 17 knots each (see the core's laws.rs).
 LAW_KEYS: tuple[str, ...] = tuple(_core.law_keys())
@@ -48,7 +48,7 @@ N_CELLS = 180
 
 
 def defaults() -> dict[str, float]:
-    """Default value of every model parameter (MODEL.md), SI units."""
+    """Default value of every model parameter (docs/model.md), SI units."""
     return dict(_DEFAULTS)
 
 
@@ -168,7 +168,7 @@ def simulate(
     n_cells : finite-volume cells over the bed height (>= 15)
     rtol, atol : step-size control tolerances (defaults meet 1e-3 on the
         15-layer maps)
-    **params : any model parameter of MODEL.md by name, e.g. ``rho_h=2450``
+    **params : any model parameter of docs/model.md by name, e.g. ``rho_h=2450``
         (kg/m^3), ``rho_l=946``, ``c0=0.5``, ``k=0.7``, ``delta_over_H=0.18``.
 
     Example
@@ -297,7 +297,7 @@ def _measured_entry(m: Any, i: int) -> tuple[np.ndarray, np.ndarray, int]:
     get = (lambda k, d=None: m.get(k, d)) if isinstance(m, Mapping) else (lambda k, d=None: getattr(m, k, d))
     c, t, s = get("c"), get("t"), get("smoothing_frames", 1)
     if c is None or t is None:
-        raise ValueError(f"measured[{i}] needs the arrays c and t (DATA.md layout)")
+        raise ValueError(f"measured[{i}] needs the arrays c and t (docs/formats.md layout)")
     c = np.ascontiguousarray(c, dtype=np.float64)
     t = _times(t, f"measured[{i}].t")
     if c.ndim != 2 or c.shape[0] != t.size:

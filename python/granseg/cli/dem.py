@@ -10,7 +10,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
         "dem", help="turn DEM runs (LAMMPS dump custom files) into maps and velocity profiles",
         description="Read each run's dump files (a directory, or dump files) with the config that names "
-        "the particle types, units, axes and cell (DATA.md), and write one concentration map per run and "
+        "the particle types, units, axes and cell (docs/formats.md), and write one concentration map per run and "
         "view (OUT/bulk/NAME.npz, OUT/wall/NAME.npz: each view's folder is a campaign) with the run's own "
         "cell, and the run's velocity profile (OUT/velocity/NAME.json, as granseg velocity writes it).")
     p.add_argument("runs", nargs="+", metavar="RUN", help="run directory (or dump file)")

@@ -19,7 +19,7 @@ def register(subparsers: Any) -> None:
                     "measurement-noise floor, fit each catalogued cause and compare them by "
                     "leave-one-experiment-out prediction. Causes: " + ", ".join(names()) + ".",
     )
-    p.add_argument("campaign", metavar="CAMPAIGN_DIR", help="directory of map .npz files (DATA.md)")
+    p.add_argument("campaign", metavar="CAMPAIGN_DIR", help="directory of map .npz files (docs/formats.md)")
     p.add_argument("--json", metavar="OUT.json", help="write the machine-readable diagnosis here")
     p.add_argument("--report", metavar="DIR", help="write the HTML report and figures into DIR")
     p.add_argument("--causes", nargs="+", metavar="NAME", choices=names(),

@@ -15,17 +15,17 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "simulate",
         help="run the segregation-diffusion model once",
-        description="Solve the model of MODEL.md for one experiment, print a summary "
+        description="Solve the model of docs/model.md for one experiment, print a summary "
         "and write a figure (PNG + PDF). Densities in kg/m^3, times in s.",
     )
-    mat = p.add_argument_group("materials (names from MODEL.md or densities)")
+    mat = p.add_argument_group("materials (names from docs/model.md or densities)")
     mat.add_argument("--heavy", default="glass", help="heavy material name (default glass)")
     mat.add_argument("--light", default="PP", help="light material name (default PP)")
     mat.add_argument("--rho-h", type=float, help="heavy density, kg/m^3 (overrides --heavy)")
     mat.add_argument("--rho-l", type=float, help="light density, kg/m^3 (overrides --light)")
     p.add_argument("--c0", type=float, default=0.5, help="overall heavy fraction (default 0.5)")
     p.add_argument("--like", metavar="MAP.npz",
-                   help="simulate the experiment of a map: its materials, c0, load, cell (DATA.md), layers and "
+                   help="simulate the experiment of a map: its materials, c0, load, cell (docs/formats.md), layers and "
                         "times; prints the RMSD against it (--k, --delta-over-H, --set still apply)")
     p.add_argument("--k", type=float, help="friction correction k (default 0.70)")
     p.add_argument("--delta-over-H", type=float, dest="delta_over_H", help="shear band delta/H (default 0.18)")
@@ -44,7 +44,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--atol", type=float, help="absolute tolerance of the stepper")
     p.add_argument("--out", default="granseg-simulation",
                    help="figure path without extension; writes OUT.png and OUT.pdf")
-    p.add_argument("--npz", help="also write the model map (15 layers, or the --like map's) as a map .npz (DATA.md)")
+    p.add_argument("--npz", help="also write the model map (15 layers, or the --like map's) as a map .npz (docs/formats.md)")
     p.add_argument("--force", action="store_true", help="overwrite existing output files")
     p.set_defaults(func=run)
 

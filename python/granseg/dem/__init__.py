@@ -1,6 +1,6 @@
 """DEM runs (LAMMPS / LIGGGHTS dumps) as a data source: the same concentration maps and
 velocity profiles as footage gives, from ``dump custom`` files and a small config
-(DATA.md, "DEM particle dumps").
+(docs/formats.md, "DEM particle dumps").
 
     >>> run = load_run("runs/ratio2", config="examples/dem/dem.json")   # doctest: +SKIP
     >>> run.to_map("wall").save("ratio2-wall.npz")                       # doctest: +SKIP

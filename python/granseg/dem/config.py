@@ -1,5 +1,5 @@
 """What a DEM run's dumps do not say: which particle type is which material, the units, the
-axes and the cell (DATA.md, "DEM particle dumps").
+axes and the cell (docs/formats.md, "DEM particle dumps").
 
 The config is a small JSON beside the dumps (``dem.json`` by default)::
 
@@ -95,7 +95,7 @@ def load_config(config: str | os.PathLike | Mapping[str, Any]) -> DemConfig:
         return _parse(dict(config), "DEM config")
     path = Path(config)
     if not path.is_file():
-        raise FileNotFoundError(f"{path}: DEM config not found (DATA.md: a JSON beside the dumps)")
+        raise FileNotFoundError(f"{path}: DEM config not found (docs/formats.md: a JSON beside the dumps)")
     try:
         raw = json.loads(path.read_text())
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
@@ -124,7 +124,7 @@ def _parse(raw: dict[str, Any], source: str) -> DemConfig:
         if key not in raw:
             hint = ' (e.g. {"length_m": 0.006, "time_s": 0.0247, "density_kg_m3": 946}, or "si")' \
                 if key == "units" else ""
-            raise _fail(source, key, f"missing (required by DATA.md){hint}")
+            raise _fail(source, key, f"missing (required by docs/formats.md){hint}")
     units = _units(source, raw["units"])
     flow, up = (_axis(source, raw, k) for k in ("flow_axis", "up_axis"))
     if flow == up:

@@ -11,7 +11,7 @@ to the layer that holds its centre. Two views:
   those a camera at a transparent wall films.
 
 The heavy share ``c`` is by solid volume (with equal sizes, by count); ``n`` and ``n_heavy``
-count grains. The map carries the run's own cell (DATA.md): ``H``, ``D_p``, ``phi_s``, ``g``
+count grains. The map carries the run's own cell (docs/formats.md): ``H``, ``D_p``, ``phi_s``, ``g``
 when the config gives gravity, and ``D_in``, ``D_out``, ``rpm`` of the annulus equivalent to
 the periodic box: the model uses the cell only through the lid pressure (M_w g / A) and the
 plate speed at the camera wall (omega D_out / 2), so the box's area and plate speed are kept
@@ -104,7 +104,7 @@ class DemRun:
 
     def materials(self) -> tuple[Material, Material]:
         """(heavy, light): the denser material is heavy; of two equally dense ones, the one on
-        top at the start (every run starts heavy above light, MODEL.md)."""
+        top at the start (every run starts heavy above light, docs/model.md)."""
         by_name: dict[str, Material] = {m.name: m for m in self.config.types.values()}
         if len(by_name) != 2:
             raise DemFormatError(f"{self.config.source}: 'types': a concentration map needs exactly two "
@@ -176,7 +176,7 @@ class DemRun:
     # ---------------------------------------------------------------- the map
 
     def cell(self) -> dict[str, float]:
-        """The run's cell by MODEL.md name (SI), as a map carries it (see the module doc)."""
+        """The run's cell by docs/model.md name (SI), as a map carries it (see the module doc)."""
         c = self.config
         D_out = math.sqrt(16 * self.area / (3 * math.pi))
         out = {"H": self.H, "D_p": c.D_p, "D_in": D_out / 2, "D_out": D_out,

@@ -138,7 +138,7 @@ def diagnose(
 
     Parameters
     ----------
-    campaign : campaign directory of map ``.npz`` files (DATA.md), a
+    campaign : campaign directory of map ``.npz`` files (docs/formats.md), a
         :class:`granseg.maps.Campaign` or a list of maps (at least 3).
     calibration : the baseline's :func:`granseg.calibrate` result on the same
         maps (default: calibrated here with the same solver settings).

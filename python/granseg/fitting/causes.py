@@ -41,7 +41,7 @@ __all__ = [
     "sidewall_view",
 ]
 
-#: The diffusion constant b [-] of MODEL.md (the core's default, from the literature).
+#: The diffusion constant b [-] of docs/model.md (the core's default, from the literature).
 B_LITERATURE = defaults()["b"]
 #: Relative surface roughness of each material [-] (how a hidden material_friction
 #: effect spreads k over the pairs of a virtual campaign).

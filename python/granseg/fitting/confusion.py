@@ -1,6 +1,6 @@
 """The measurement's confusion of the two kinds, measured where the truth is known.
 
-Every run starts stratified (MODEL.md): heavy grains above the interface,
+Every run starts stratified (docs/model.md): heavy grains above the interface,
 light below. Until the shear mixes them, the layers well away from the
 interface are pure, and the model says which ones and for how long. Any heavy
 grain a map reports in a pure light layer there (or light grain in a pure

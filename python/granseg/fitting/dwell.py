@@ -16,7 +16,7 @@ low, 4-5 of its standard errors (``benches/probe_view_lag.py``).
 The survival is measured from the maps' counts, not assumed. A grain leaves
 when the flow has carried it across the window's width W, so per frame
 s_j = exp(-|v(z_j)| dt / W) with v the shear profile v(z) = v0 exp(-z / delta)
-of MODEL.md. Only W is carried into the fits: each model run lags its map
+of docs/model.md. Only W is carried into the fits: each model run lags its map
 with its own velocity profile (:func:`survival`), so a cause that changes the
 shear band of some experiments (a load-dependent band) changes their dwell
 with it, as it does in the bed. The counting noise of a layer is then correlated over lag l

@@ -1,7 +1,7 @@
 """What an effect is: the one object the fit and the virtual experiment share.
 
 An :class:`Effect` is a named, physical change of the baseline model of
-MODEL.md. It knows
+docs/model.md. It knows
 
 * its fitted parameters (:class:`Param`: bounds, start, finite-difference
   step, unit, optional prior), the baseline's ``k`` [-] and ``delta_over_H``
@@ -87,7 +87,7 @@ class Effect:
     """Base class and the baseline model itself (no extra parameter)."""
 
     name: ClassVar[str] = "baseline"
-    description: ClassVar[str] = "MODEL.md as it stands: one k and one delta/H for every experiment."
+    description: ClassVar[str] = "docs/model.md as it stands: one k and one delta/H for every experiment."
     #: the covariate this cause is expected to correlate with (for the evidence figures)
     covariate: ClassVar[str | None] = None
     #: fitted by the diagnosis (False: only hidden in virtual campaigns, to test "unexplained")
@@ -110,7 +110,7 @@ class Effect:
         """Solver keyword parameters for experiment ``exp`` at parameters ``x``.
 
         The baseline passes ``k``, ``delta_over_H`` and any other model
-        parameter of MODEL.md in ``x`` (a calibration may free e.g. ``b``) to
+        parameter of docs/model.md in ``x`` (a calibration may free e.g. ``b``) to
         the solver unchanged; an extension turns its own parameters into
         model parameters.
         """

@@ -1,4 +1,4 @@
-"""Open-world corrections: each constitutive law of MODEL.md made flexible in turn.
+"""Open-world corrections: each constitutive law of docs/model.md made flexible in turn.
 
 When no catalogue cause explains a misfit, the diagnosis asks every law
 whether a smooth correction of it predicts the held-out experiments better:

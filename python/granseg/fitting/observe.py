@@ -156,6 +156,6 @@ def residual(data: Data, i: int, layers: np.ndarray) -> np.ndarray:
 
 
 def rmsd(data: Data, i: int, layers: np.ndarray) -> float:
-    """RMSD [-] of experiment i (MODEL.md definition)."""
+    """RMSD [-] of experiment i (docs/model.md definition)."""
     d = (layers - data.maps[i].c)[data.masks[i]]
     return float(np.sqrt(np.mean(d**2)))

@@ -1,7 +1,7 @@
 """Heavy or light: each sphere's appearance, two classes learned from the first frame.
 
 No thresholds are tuned by hand, and no material pair is special-cased. An
-experiment starts stratified (MODEL.md): heavy grains above the interface at
+experiment starts stratified (docs/model.md): heavy grains above the interface at
 height (1 - c0) H, light ones below. The first frame is therefore labelled
 training data for free: spheres more than :data:`MARGIN` diameters above the
 interface are heavy, those as far below are light. A classifier learned on
@@ -151,7 +151,7 @@ def interface_labels(height: np.ndarray, c0: float, n_layers: int, margin: float
     """Labels the stratified start gives: 1 heavy, 0 light, -1 too near the interface.
 
     ``height`` [diameters above the bottom wall] of the first frame's
-    spheres; the interface lies at (1 - c0) n_layers diameters (MODEL.md).
+    spheres; the interface lies at (1 - c0) n_layers diameters (docs/model.md).
     """
     h = np.asarray(height, dtype=float)
     interface = (1.0 - c0) * n_layers

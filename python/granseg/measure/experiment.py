@@ -1,4 +1,4 @@
-"""Read and check ``experiment.json`` (DATA.md): metadata, camera model, window."""
+"""Read and check ``experiment.json`` (docs/formats.md): metadata, camera model, window."""
 
 from __future__ import annotations
 
@@ -36,7 +36,7 @@ class Experiment(Conditions):
     colour_ranges: dict[str, np.ndarray] = field(default_factory=dict)
 
     def metadata(self) -> dict[str, Any]:
-        """The map metadata fields (DATA.md) of this experiment."""
+        """The map metadata fields (docs/formats.md) of this experiment."""
         return dict(name=self.name, heavy=self.heavy, light=self.light, rho_h=self.rho_h,
                     rho_l=self.rho_l, c0=self.c0, M_g=self.M_g, M_w=self.M_w)
 

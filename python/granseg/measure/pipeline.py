@@ -121,7 +121,7 @@ def analyze(
     ----------
     path : a directory of frames (PNG/JPEG, name order = time order) holding
         ``experiment.json``, or a video file with ``experiment.json`` beside it.
-    out : map file to write (DATA.md ``.npz``); default ``map.npz`` beside
+    out : map file to write (docs/formats.md ``.npz``); default ``map.npz`` beside
         ``experiment.json``.
     smooth : width N [frames] of the centred moving average giving ``c`` from
         ``c_raw`` (odd; 1 = none); recorded as ``smoothing_frames``.

@@ -2,7 +2,7 @@
 
 A frame analysis that goes wrong rarely fails: it writes a plausible map. So
 every map carries a quality record (the ``quality`` key of the map ``.npz``,
-DATA.md): each check's figure, its limit, whether it passed, and an overall
+docs/formats.md): each check's figure, its limit, whether it passed, and an overall
 ``ok``. ``granseg analyze`` prints it and warns loudly when a check fails;
 ``calibrate`` and ``diagnose`` refuse a flagged map unless told to accept it.
 

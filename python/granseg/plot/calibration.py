@@ -222,7 +222,7 @@ def _param_label(key: str) -> str:
 
 def profiles(params: Mapping[str, float], *, deltas: Sequence[float] = (),
              delta_err: float | None = None) -> Figure:
-    """Velocity v(z) [m/s] and shear rate |dv/dz| [1/s] against H* (MODEL.md closures).
+    """Velocity v(z) [m/s] and shear rate |dv/dz| [1/s] against H* (docs/model.md closures).
 
     ``params`` needs ``rpm``, ``D_out`` [m], ``v1`` [m/s], ``H`` [m] and the
     calibrated ``delta_over_H``; ``deltas`` are further delta/H values (the

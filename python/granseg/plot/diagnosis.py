@@ -36,7 +36,7 @@ PAIR_COLOURS: list[str] = STYLE["axes.prop_cycle"].by_key()["color"]
 
 
 def _bed_height(d: Diagnosis, m: Any) -> float:
-    """Bed height H [m] of map ``m`` in the diagnosis: its own cell's, else the one fixed, else MODEL.md's."""
+    """Bed height H [m] of map ``m`` in the diagnosis: its own cell's, else the one fixed, else docs/model.md's."""
     return float({**d.data.fixed, **m.cell}.get("H", defaults()["H"]))
 
 

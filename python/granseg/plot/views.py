@@ -41,7 +41,7 @@ def depth_mean(m: Any) -> np.ndarray:
 
 
 def _height(m: Any) -> float:
-    return float(m.cell.get("H", N_LAYERS * D_P))  # MODEL.md's bed unless the map carries its own
+    return float(m.cell.get("H", N_LAYERS * D_P))  # docs/model.md's bed unless the map carries its own
 
 
 def view_comparison(runs: Sequence[Mapping[str, Any]], max_runs: int = 8) -> Figure:

@@ -1,6 +1,6 @@
 """Effects outside the catalogue, to hide in virtual campaigns: the open world's test cases.
 
-Each is a law of MODEL.md changed in a form of this generator's own, which
+Each is a law of docs/model.md changed in a form of this generator's own, which
 none of the diagnosis' fit bases contains (:mod:`granseg.fitting.laws` fits
 quadratic B-splines; these are tanh steps, Gaussian bumps and smooth windows,
 sampled onto the core's 17-knot tables):

@@ -42,7 +42,7 @@ __all__ = ["MATERIAL_LOOKS", "VIDEO_CODECS", "RenderedFrames", "default_camera",
 # specular weights; shininess: Blinn-Phong exponent; metal: mirror-like
 # reflection of the surroundings; glass: transparent, shows the grains behind;
 # size_spread: relative standard deviation of the diameter. Optional keys:
-# material: the MODEL.md material whose density the look takes (default: the
+# material: the docs/model.md material whose density the look takes (default: the
 # look's own name); mirror: a polished metal that shows a sharp image of its
 # surroundings (dark lab and camera, lit ceiling, the lamps' panels) rather
 # than the soft sheen of ``metal``.

@@ -1,7 +1,7 @@
 """High-speed footage of a pure bed whose velocity profile is known (issue 12's test data).
 
 The side-wall renderer (:func:`granseg.synth.frames.render_frames`) moves every
-half-diameter band of the bed at exactly the mean of MODEL.md's profile
+half-diameter band of the bed at exactly the mean of docs/model.md's profile
 v(z) = v1 + (v0 - v1) exp(-z / delta) over its grains (``exact_speeds``), with the
 bumpy plate moving at v0 and each grain smeared over the distance it travels while the
 shutter is open. A recording is one frame rate; :func:`render_recordings` makes the
@@ -45,7 +45,7 @@ def render_highspeed(
     **look: Any,
 ) -> RenderedFrames:
     """Render ``n_frames`` frames at ``fps`` [1/s] of a bed of ``material`` sheared with the
-    profile (``v0``, ``v1`` [m/s], default MODEL.md's plate speed and 0; ``delta_over_H``
+    profile (``v0``, ``v1`` [m/s], default docs/model.md's plate speed and 0; ``delta_over_H``
     [-] of a 15-diameter bed); ``exposure_s`` [s] is the shutter time (default half the
     frame interval), which smears each grain over the distance it moves meanwhile.
 

@@ -5,7 +5,7 @@ A second look for the tests, independent of :mod:`granseg.synth.frames`:
 conducting steel, white ceramic, slightly green rough glass, dark filled POM,
 blue polypropylene; or a matte and a glossy grey plastic) packed against the
 inside of the outer PMMA cylinder of the cell (inner radius D_out / 2 of
-MODEL.md, 5 mm thick, IOR 1.49), a second, partly hidden layer behind them,
+docs/model.md, 5 mm thick, IOR 1.49), a second, partly hidden layer behind them,
 the 3-D-printed PLA lid and plate (the paper's material) with hemispherical
 bumps one diameter across, two LED panel lamps beside the camera and a dark
 interior. A pinhole camera looks through the curved wall; the OpenCV lens
@@ -77,8 +77,8 @@ __all__ = ["FIXTURE_LOOKS", "PBR_MATERIALS", "PbrFrames", "fixture_map", "load_f
 
 # --------------------------------------------------------------------------- the cell [mm]
 
-D_MM = 6.0  # sphere diameter (MODEL.md D_p)
-R_WALL = 95.0  # inner radius of the outer PMMA cylinder (MODEL.md D_out / 2)
+D_MM = 6.0  # sphere diameter (docs/model.md D_p)
+R_WALL = 95.0  # inner radius of the outer PMMA cylinder (docs/model.md D_out / 2)
 WALL_MM = 5.0  # thickness of the PMMA wall
 PMMA_IOR = 1.49
 PLATE_GAP = 0.5  # radial gap between the plate / lid and the wall
@@ -897,8 +897,8 @@ def _sensor(img: np.ndarray, vignetting: float, noise: float, jpeg_quality: int 
 
 
 def _experiment(heavy, light, cmap, k_mat, dist, win, d, fps, extra) -> dict[str, Any]:
-    """The 2-D renderer's experiment.json, named as a PBR look and with DATA.md's material spellings."""
-    names = {"pom": "POM", "pp": "PP"}  # as DATA.md spells them
+    """The 2-D renderer's experiment.json, named as a PBR look and with docs/formats.md's material spellings."""
+    names = {"pom": "POM", "pp": "PP"}  # as docs/formats.md spells them
     base = {"name": f"pbr-{heavy}-{light}", "heavy": names.get(heavy, heavy), "light": names.get(light, light)}
     return frame_experiment(heavy, light, cmap, k_mat, dist, win, d, fps, {**base, **(extra or {})})
 

@@ -3,7 +3,7 @@
 ``campaign(...)`` runs the segregation-diffusion model for a list of
 conditions (default: the 16 of the paper's Table 1) with one effect of the
 diagnosis catalogue switched on at a chosen strength, and turns each run into
-a map in the DATA.md format through a realistic measurement (``noise=``,
+a map in the docs/formats.md format through a realistic measurement (``noise=``,
 default the ``persistent`` process):
 
 * **counting** - each of the 15 layers of the 9 D_p wide window holds 9 to 11
@@ -19,7 +19,7 @@ default the ``persistent`` process):
   so the counting noise there is strongly correlated in time;
 * **moving average** - ``c`` is the centred moving average of ``c_raw`` over
   ``smoothing_frames`` (about ``smoothing_s`` seconds), as the paper smooths;
-  it skips missing frames, which stay NaN in ``c`` as in ``c_raw`` (DATA.md).
+  it skips missing frames, which stay NaN in ``c`` as in ``c_raw`` (docs/formats.md).
 
 Noise processes (``noise=``: a name of :data:`NOISE_PROCESSES`, a
 :class:`NoiseProcess`, ``True`` = ``"persistent"``, ``False`` = the exact
@@ -62,7 +62,7 @@ MAX_DURATION = 2 h, so a very slow case may end before its steady state).
 Effects (``effect=`` and the meaning of ``strength``):
 
 =============================  ===============================================
-``None`` / ``"none"``           the baseline of MODEL.md
+``None`` / ``"none"``           the baseline of docs/model.md
 ``load_dependent_shear_band``   exponent p: delta/H = delta/H_ref (M~/0.5)^-p
 ``evolving_shear_band``         delta_drift [-] (time scale ``drift_time`` s,
                                 default 600 s)
@@ -394,7 +394,7 @@ def _flip(in_view: np.ndarray, heavy: np.ndarray, p: float, rng: np.random.Gener
 def _experiment(cond: Condition, effect: Effect, strength: float, base: Mapping[str, float],
                 effect_params: Mapping[str, float], rng: np.random.Generator, opts: Mapping[str, Any]
                 ) -> dict[str, Any]:
-    """The map arrays (DATA.md keys) of one virtual experiment."""
+    """The map arrays (docs/formats.md keys) of one virtual experiment."""
     exp = _exp_info(cond, opts["cell"])
     x = {**base, **effect.hidden(strength, exp, effect_params)}
     params, shift = effect.solver_params(x, exp), effect.time_shift(x, exp)
@@ -479,7 +479,7 @@ def campaign(
 
     Parameters
     ----------
-    out_dir : directory to write one map ``NAME.npz`` per experiment (DATA.md)
+    out_dir : directory to write one map ``NAME.npz`` per experiment (docs/formats.md)
         and ``campaign.json`` (the ground truth); created if missing; existing
         files are kept unless ``force``. None: only return the maps.
     conditions : list of :class:`Condition` (or dicts with heavy, light, c0,
@@ -497,9 +497,9 @@ def campaign(
     k, delta_over_H : the baseline's friction correction [-] and band width [-].
     effect_params : extra settings (``drift_time`` [s] of evolving_shear_band).
     n_cells : cells of the simulation behind the maps.
-    cell : another cell than MODEL.md's, by MODEL.md names (``H``, ``D_p``,
+    cell : another cell than docs/model.md's, by docs/model.md names (``H``, ``D_p``,
         ``D_in``, ``D_out``, ``rpm``, ``v1``, ``phi_s``, ``g``; SI): the runs use
-        it and the maps carry it (DATA.md).
+        it and the maps carry it (docs/formats.md).
     n_layers : layers of the maps (15: the paper's window).
 
     Returns the list of :class:`granseg.maps.Map`, in condition order.
@@ -532,7 +532,7 @@ def campaign(
 
 
 def _cell(cell: Mapping[str, float] | None) -> dict[str, float]:
-    """The cell constants, checked by name (MODEL.md's geometry, speed and material constants)."""
+    """The cell constants, checked by name (docs/model.md's geometry, speed and material constants)."""
     from granseg.maps import CELL_KEYS
 
     out = {}

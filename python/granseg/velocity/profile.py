@@ -3,7 +3,7 @@ writes, what a DEM run's dumps give, and what ``--velocity`` reads back.
 
 The profile is one value per one-diameter layer: heights ``z`` [m] above the
 plate, mean streamwise speed ``v`` [m/s] at the outer wall (or in the bulk, for
-a DEM run) and its standard error ``v_err``. The fit is MODEL.md's
+a DEM run) and its standard error ``v_err``. The fit is docs/model.md's
 v(z) = v1 + (v0 - v1) exp(-z / delta) (:func:`granseg.fit.fit_shear_band`).
 
 JSON (``to_dict`` / :func:`load_profile`)::
@@ -178,8 +178,8 @@ def measured_params(velocity: VelocityProfile | ShearBandLaw, M_tilde: Sequence[
     ``shape="tabulated"`` (a profile only) makes the model's shear rate the measured one, not its
     exponential fit: the measured -dv/dz enters as the shear-profile law's factor on the
     exponential (``law_shear_z_*``, 17 knots in z/H), so a linear or S-shaped band is modelled
-    as it is. ``cells`` gives each experiment's model constants (MODEL.md names: the plate speed
-    and bed height the factor is taken against; default MODEL.md's)."""
+    as it is. ``cells`` gives each experiment's model constants (docs/model.md names: the plate speed
+    and bed height the factor is taken against; default docs/model.md's)."""
     if shape not in SHAPES:
         raise ValueError(f"velocity shape {shape!r}: choose one of {', '.join(SHAPES)}")
     if isinstance(velocity, ShearBandLaw):

@@ -94,7 +94,7 @@ class Recording:
 
 def _wall_radius(exp_raw: dict[str, Any]) -> float:
     """Radius [m] of the wall the camera looks through: experiment.json's ``wall_radius``
-    (0: a flat wall), else MODEL.md's outer cylinder, D_out / 2."""
+    (0: a flat wall), else docs/model.md's outer cylinder, D_out / 2."""
     r = exp_raw.get("wall_radius")
     if r is None:
         return defaults()["D_out"] / 2
