@@ -72,7 +72,7 @@ fn stats_dict<'py>(py: Python<'py>, s: &Stats) -> PyResult<Bound<'py, PyDict>> {
     Ok(d)
 }
 
-/// Default value of every model parameter (MODEL.md), SI units.
+/// Default value of every model parameter (docs/model.md), SI units.
 #[pyfunction]
 fn defaults() -> HashMap<String, f64> {
     let p = Params::default();
@@ -88,7 +88,7 @@ fn law_keys() -> Vec<String> {
     crate::laws::Laws::keys()
 }
 
-/// Material densities of MODEL.md, kg/m^3.
+/// Material densities of docs/model.md, kg/m^3.
 #[pyfunction]
 fn materials() -> HashMap<String, f64> {
     MATERIALS.iter().map(|(n, r)| (n.to_string(), *r)).collect()

@@ -1,5 +1,5 @@
 //! Open-world corrections of the baseline's constitutive laws (a named option,
-//! off by default: every table zero is MODEL.md exactly).
+//! off by default: every table zero is docs/model.md exactly).
 //!
 //! Each correction is a log-factor tabulated at `N_KNOTS` evenly spaced knots
 //! of a variable scaled to [0, 1], linearly interpolated and clamped at the

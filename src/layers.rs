@@ -1,5 +1,5 @@
 //! What a measurement sees: layer means, the centred moving average and the
-//! RMSD between a measured and a model map (MODEL.md, DATA.md).
+//! RMSD between a measured and a model map (docs/model.md, docs/formats.md).
 
 use crate::error::SolveError;
 
@@ -47,7 +47,7 @@ impl LayerMap {
 /// Centred moving average over time of an (n_t, n_cols) row-major map with
 /// odd window `width` (1 = none; callers reject even widths, which cannot be
 /// centred). The half-width is (width - 1) / 2 and shrinks
-/// symmetrically at the ends of the series, as DATA.md specifies.
+/// symmetrically at the ends of the series, as docs/formats.md specifies.
 pub fn moving_average(map: &[f64], n_t: usize, n_cols: usize, width: usize) -> Vec<f64> {
     let half = width.saturating_sub(1) / 2;
     if half == 0 {

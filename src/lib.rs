@@ -1,4 +1,4 @@
-//! granseg's numerical core: the segregation-diffusion model of MODEL.md,
+//! granseg's numerical core: the segregation-diffusion model of docs/model.md,
 //! its implicit adaptive stepper, the direct steady-state solve and the
 //! parallel sweep. Pure Rust; the PyO3 layer lives in `bindings.rs` behind
 //! the `python` feature, so `cargo test` and `cargo bench` need no Python.

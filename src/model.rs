@@ -1,4 +1,4 @@
-//! Closures of MODEL.md on a finite-volume grid: shear rate, pressure,
+//! Closures of docs/model.md on a finite-volume grid: shear rate, pressure,
 //! mu(I), segregation speed and diffusivity, and the initial condition.
 
 use crate::params::Params;

@@ -1,4 +1,4 @@
-//! Model parameters: the single source of truth for MODEL.md's constants.
+//! Model parameters: the single source of truth for docs/model.md's constants.
 //!
 //! Python reads the defaults from here (`_core.defaults()`), so no constant is
 //! ever copied by hand into another language.
@@ -52,7 +52,7 @@ pub struct Params {
     pub delta_drift: f64,
     /// Time scale of the drift, s.
     pub delta_drift_time: f64,
-    /// Open-world corrections of the constitutive laws (all zero: MODEL.md).
+    /// Open-world corrections of the constitutive laws (all zero: docs/model.md).
     pub laws: Laws,
 }
 
@@ -84,7 +84,7 @@ impl Default for Params {
     }
 }
 
-/// Material densities of MODEL.md, kg/m^3.
+/// Material densities of docs/model.md, kg/m^3.
 pub const MATERIALS: [(&str, f64); 5] = [
     ("steel", 7800.0),
     ("ceramic", 3500.0),
@@ -95,7 +95,7 @@ pub const MATERIALS: [(&str, f64); 5] = [
 
 type Field = (&'static str, fn(&Params) -> f64, fn(&mut Params, f64));
 
-/// Python-facing names (as in MODEL.md) with accessors, in a fixed order.
+/// Python-facing names (as in docs/model.md) with accessors, in a fixed order.
 pub const FIELDS: [Field; 21] = [
     ("rho_h", |p| p.rho_h, |p, v| p.rho_h = v),
     ("rho_l", |p| p.rho_l, |p, v| p.rho_l = v),
@@ -133,7 +133,7 @@ pub const FIELDS: [Field; 21] = [
 ];
 
 impl Params {
-    /// Set a parameter by its MODEL.md name (or a law knot's, see `laws`).
+    /// Set a parameter by its docs/model.md name (or a law knot's, see `laws`).
     pub fn set(&mut self, name: &str, value: f64) -> Result<(), SolveError> {
         match FIELDS.iter().find(|f| f.0 == name) {
             Some(f) => {
@@ -147,7 +147,7 @@ impl Params {
         }
     }
 
-    /// Read a parameter by its MODEL.md name (or a law knot's).
+    /// Read a parameter by its docs/model.md name (or a law knot's).
     pub fn get(&self, name: &str) -> Option<f64> {
         FIELDS
             .iter()
