@@ -61,6 +61,29 @@ def test_cli_writes_map_and_refuses_to_overwrite(frames, capsys):
     assert main(["analyze", str(frames), "--no-progress", "--force", "--smooth", "1"]) == 0
 
 
+def test_maps_go_into_a_campaign_folder_with_smoothing_in_seconds(frames, tmp_path, capsys):
+    """`--out CAMPAIGN/` names the map after the experiment (no renaming by hand), and a
+    smoothing window in seconds becomes the odd frame count nearest to it."""
+    from granseg.maps import load_campaign
+    from granseg.measure.pipeline import frames_for_seconds
+
+    fps = json.loads((frames / "experiment.json").read_text())["fps"]
+    name = json.loads((frames / "experiment.json").read_text())["name"]
+    camp = tmp_path / "campaign"
+    assert main(["analyze", str(frames), "--out", f"{camp}/", "--smooth-seconds", str(2.9 / fps),
+                 "--no-progress"]) == 0
+    assert "smoothing: 3 frames" in capsys.readouterr().out
+    c = load_campaign(camp)
+    assert [m.path.name for m in c.maps] == [f"{name}.npz"] and c.maps[0].smoothing_frames == 3
+    assert main(["analyze", str(frames), "--out", str(camp), "--no-progress"]) == 2  # a folder: same name, kept
+    with pytest.raises(SystemExit):
+        main(["analyze", str(frames), "--smooth", "3", "--smooth-seconds", "5", "--no-progress"])
+    assert "not allowed with" in capsys.readouterr().err  # argparse names the clash
+    assert [frames_for_seconds(s, 1.0) for s in (0, 0.4, 1.9, 2.1, 4.9, 5.9, 6.1)] == [1, 1, 1, 3, 5, 5, 7]
+    with pytest.raises(ValueError, match="smooth_seconds"):
+        frames_for_seconds(-1, 1.0)
+
+
 @pytest.mark.parametrize("damage, message", [
     (lambda p: p.write_bytes(b""), "empty file"),
     (lambda p: p.write_bytes(p.read_bytes()[:2000]), "truncated PNG"),

@@ -14,9 +14,17 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "heavy-concentration map (docs/formats.md). PATH is a directory of PNG/JPEG frames holding "
         "experiment.json, or a video file with experiment.json beside it.")
     p.add_argument("path", metavar="PATH", help="frames directory or video file")
-    p.add_argument("--out", metavar="FILE", help="map file to write (default: map.npz beside experiment.json)")
-    p.add_argument("--smooth", metavar="N", type=int, default=5,
-                   help="centred moving average over N frames (odd; 1 = none; default 5)")
+    p.add_argument("--out", metavar="FILE|DIR/",
+                   help="map file to write (default: map.npz beside experiment.json); a folder (existing, or "
+                        "ending in /) gets NAME.npz after the experiment's name, so recordings analysed into "
+                        "one folder make a campaign")
+    smooth = p.add_mutually_exclusive_group()
+    smooth.add_argument("--smooth-frames", "--smooth", dest="smooth", metavar="N", type=int, default=5,
+                        help="centred moving average over N frames (odd; 1 = none; default 5). Frames, not "
+                             "seconds: at one frame every 2 min, 5 frames span 10 min")
+    smooth.add_argument("--smooth-seconds", metavar="S", type=float,
+                        help="the same average over S seconds of recording (the odd frame count nearest "
+                             "S x fps)")
     p.add_argument("--preview", metavar="DIR", help="write annotated preview images to DIR")
     p.add_argument("--preview-count", metavar="K", type=int, default=6,
                    help="number of preview frames spread over the run (default 6)")
@@ -41,7 +49,8 @@ def run(args: argparse.Namespace) -> int:
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", BadFrameWarning)
         warnings.simplefilter("ignore", QualityWarning)  # the report below says it, in full
-        result = analyze(args.path, out=args.out, smooth=args.smooth, preview=args.preview,
+        result = analyze(args.path, out=args.out, smooth=args.smooth, smooth_seconds=args.smooth_seconds,
+                         preview=args.preview,
                          preview_count=args.preview_count, force=args.force,
                          workers=args.workers, progress=not args.no_progress, detections=args.detections)
     for w in caught:
@@ -55,7 +64,9 @@ def run(args: argparse.Namespace) -> int:
     glare = result.quality.figures.get("wall_glare_grey_levels", 0.0)
     if glare >= 10:
         print(f"lamp reflections on the wall taken off: up to {glare:.0f} grey levels")
-    print(f"map written to {result.out} (smoothing_frames = {result.smoothing_frames})")
+    step = float(result.t[1] - result.t[0]) if len(result.t) > 1 else 0.0
+    print(f"map written to {result.out} (smoothing: {result.smoothing_frames} frames = "
+          f"{result.smoothing_frames * step:.4g} s of recording)")
     if result.detections is not None:
         print(f"detections written to {result.detections}")
     if result.previews:

@@ -107,6 +107,7 @@ def analyze(
     *,
     out: str | os.PathLike | None = None,
     smooth: int = 5,
+    smooth_seconds: float | None = None,
     preview: str | os.PathLike | None = None,
     preview_count: int = 6,
     force: bool = False,
@@ -122,9 +123,13 @@ def analyze(
     path : a directory of frames (PNG/JPEG, name order = time order) holding
         ``experiment.json``, or a video file with ``experiment.json`` beside it.
     out : map file to write (docs/formats.md ``.npz``); default ``map.npz`` beside
-        ``experiment.json``.
+        ``experiment.json``. A folder (existing, or given with a trailing ``/``)
+        receives ``NAME.npz`` named after the experiment, so several recordings
+        analysed into one folder make a campaign; a missing folder is created.
     smooth : width N [frames] of the centred moving average giving ``c`` from
         ``c_raw`` (odd; 1 = none); recorded as ``smoothing_frames``.
+    smooth_seconds : the same width as a time [s] instead: N is the odd number of
+        frames nearest to ``smooth_seconds * fps`` (at least 1). Overrides ``smooth``.
     preview : directory for annotated preview PNGs of ``preview_count`` frames
         spread over the run (first and last included).
     force : replace existing output files.
@@ -146,12 +151,15 @@ def analyze(
         raise ValueError(f"smooth: expected an odd number of frames >= 1 (1 = none), got {smooth!r}")
     source, exp_path = open_frames(path)
     exp = load_experiment(exp_path)
-    out_path = Path(out) if out is not None else exp_path.parent / "map.npz"
+    fps = _frame_rate(exp, source)
+    if smooth_seconds is not None:
+        smooth = frames_for_seconds(smooth_seconds, fps)
+    out_path = map_path(out, exp.name, exp_path.parent)
     if save:
+        out_path.parent.mkdir(parents=True, exist_ok=True)
         check_writable(out_path, force)
     if detections is not None:
         check_writable(detections, force)
-    fps = _frame_rate(exp, source)
     keep = _preview_indices(len(source), preview_count if preview is not None else 2)
     spheres, crops, bad, names = _detect_all(source, exp, workers, progress, keep)
     classes = _classify(spheres, exp, crops)
@@ -201,6 +209,29 @@ def detect_frames(path: str | os.PathLike, *, workers: int | None = None, progre
     fps = _frame_rate(exp, source)
     spheres, _, bad, names = _detect_all(source, exp, workers, progress, set())
     return Detected(exp, fps, spheres, names, bad)
+
+
+def frames_for_seconds(seconds: float, fps: float) -> int:
+    """The odd number of frames (>= 1) nearest to ``seconds`` of recording at ``fps``: what a
+    smoothing window given in time means for a centred moving average."""
+    if isinstance(seconds, bool) or not np.isfinite(float(seconds)) or float(seconds) < 0:
+        raise ValueError(f"smooth_seconds: expected a duration >= 0 s, got {seconds!r}")
+    n = float(seconds) * fps
+    return max(1, 2 * int(np.floor(n / 2)) + 1)
+
+
+def map_path(out: str | os.PathLike | None, name: str, beside: Path) -> Path:
+    """Where the map goes: ``map.npz`` in ``beside`` by default, ``OUT/NAME.npz`` when ``out``
+    is a folder (existing, or written with a trailing separator), else ``out`` itself."""
+    if out is None:
+        return beside / "map.npz"
+    text = os.fspath(out)
+    p = Path(text)
+    if p.is_dir() or text.endswith(("/", os.sep)):
+        if not name or name in (".", "..") or "/" in name or os.sep in name:
+            raise ValueError(f"experiment name {name!r} cannot name a map file in {p}: give --out a file path")
+        return p / f"{name}.npz"
+    return p
 
 
 def _frame_rate(exp: Experiment, source: FrameDirectory | VideoFrames) -> float:
