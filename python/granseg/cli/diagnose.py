@@ -40,11 +40,17 @@ def run(args: argparse.Namespace) -> int:
     import logging
 
     logging.getLogger("fontTools").setLevel(logging.WARNING)  # PDF font subsetting chatter
+    from granseg._io import check_writable
     from granseg.diagnosis import diagnose
+    from granseg.report.diagnosis import write_outputs
+    from granseg.report.provenance import command_line
 
-    d = diagnose(args.campaign, json=args.json, report=args.report, force=args.force,
-                 causes=args.causes, n_cells=args.n_cells, progress=not args.quiet,
-                 accept_flagged=args.accept_flagged, velocity=args.velocity)
+    if args.json is not None:
+        check_writable(args.json, args.force)  # before the work, not after it
+    d = diagnose(args.campaign, force=args.force, causes=args.causes, n_cells=args.n_cells,
+                 progress=not args.quiet, accept_flagged=args.accept_flagged, velocity=args.velocity)
+    # the outputs carry the provenance, this command line included
+    write_outputs(d, report=args.report, json=args.json, force=args.force, command=command_line("diagnose"))
     r = d.result
     print(f"cause: {r['cause']}  (explained: {str(r['explained']).lower()})")
     print(r["summary"])

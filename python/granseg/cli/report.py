@@ -26,11 +26,13 @@ def register(subparsers: Any) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from granseg.report import build_report
+    from granseg.report.provenance import command_line
 
     logging.getLogger("fontTools").setLevel(logging.WARNING)  # PDF font subsetting chatter
     c0 = None if args.c0 < 0 else args.c0
     with dask_client(args.dask) as client:
         page = build_report(args.campaign, args.out, fits_c0=c0, force=args.force,
-                            progress=not args.quiet, client=client, **calibration_kwargs(args))
+                            progress=not args.quiet, client=client, command=command_line("report"),
+                            **calibration_kwargs(args))
     print(f"wrote {page} (open it in a browser) and {page.parent / 'report.json'}")
     return 0

@@ -8,6 +8,7 @@ Figures are built without pyplot (no GUI, no global state, Agg canvas) inside
 from __future__ import annotations
 
 import contextlib
+import math
 import os
 from collections.abc import Iterator
 from pathlib import Path
@@ -20,7 +21,7 @@ from matplotlib.figure import Figure
 from granseg._io import atomic_path, check_writable
 
 __all__ = ["STYLE", "C_LABEL", "T_LABEL", "H_LABEL", "style", "new_figure", "save_figure", "edges",
-           "time_edges", "map_edges"]
+           "time_edges", "map_edges", "pm_text"]
 
 STYLE: dict[str, Any] = {
     "font.size": 8.5,
@@ -102,3 +103,35 @@ def map_edges(m: Any, H: float) -> tuple[np.ndarray, np.ndarray]:
     te = time_edges(m.t)
     ze = edges(m.z / H, lo=0.0) if m.z[0] > 0 else edges(m.z / H)
     return te, ze
+
+
+def _finite(x: Any) -> bool:
+    return isinstance(x, int | float) and not isinstance(x, bool) and math.isfinite(x)
+
+
+def pm_text(value: Any, err: Any, fmt: str = ".4g") -> str:
+    """``value ± err`` as plain text, the digits set by the error.
+
+    The error keeps two significant digits and the value is rounded to the
+    same decimal place, so a value far below its error reads as what it is
+    (``1.29e-06 ± 1.4`` gives ``0.0 ± 1.4``); very small or very large
+    numbers share one power of ten (``(1.290 ± 0.020)e-06``). Without a
+    usable error (None, NaN, zero) the value alone in format ``fmt``.
+    """
+    if not _finite(value):
+        return "–" if value is None or isinstance(value, float) else str(value)
+    if not _finite(err) or err <= 0:
+        return format(value, fmt)
+    err = float(err)
+    value = float(value)
+    top = math.floor(math.log10(max(abs(value), err)))
+    scale = 0 if -3 <= top < 6 else top
+    v, e = value / 10.0**scale, err / 10.0**scale
+    places = 1 - math.floor(math.log10(e))  # decimals that keep two significant digits of the error
+    e = round(e, places)
+    if e > 0 and 1 - math.floor(math.log10(e)) < places:  # rounding carried (0.0996 -> 0.10)
+        places -= 1
+    v = round(v, places) + 0.0  # + 0.0: no "-0.0"
+    d = max(places, 0)
+    body = f"{v:.{d}f} ± {e:.{d}f}"
+    return body if scale == 0 else f"({body})e{scale:+03d}"

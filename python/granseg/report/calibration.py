@@ -9,7 +9,10 @@ figures and writes into ``OUT``::
     OUT/figures/*.png   the same figures as files, with a PDF beside each
 
 The HTML is rendered from the JSON document (:func:`render`), so the two
-cannot disagree. Nothing existing is replaced unless ``force=True``.
+cannot disagree. The page opens with the provenance (input, granseg version,
+UTC date, command line) and, for data not measured in a laboratory, a
+SYNTHETIC banner (:mod:`granseg.report.provenance`); the calibration's
+warnings are shown on it too. Nothing existing is replaced unless ``force=True``.
 
 Example::
 
@@ -19,9 +22,9 @@ Example::
 
 from __future__ import annotations
 
-import datetime as _dt
 import os
 import re
+import warnings
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -29,15 +32,27 @@ from typing import Any
 import numpy as np
 from matplotlib.figure import Figure
 
-from granseg import __version__
 from granseg._io import atomic_write, prepare_output_dir, save_json
-from granseg.calibration import calibrate
+from granseg.calibration import CalibrationWarning, calibrate
 from granseg.fit import fit_campaign
 from granseg.maps import load_campaign, views_of
 from granseg.measure.quality import views_table
 from granseg.model import defaults, simulate
 from granseg.plot import bottom_fits, laws, map_comparison, profiles, rmsd_grid, view_comparison
-from granseg.report.html import esc, figures, num, page, pm, save_figures, table, views_section
+from granseg.report.html import (
+    esc,
+    figures,
+    num,
+    nums,
+    page,
+    pm,
+    provenance_section,
+    save_figures,
+    table,
+    views_section,
+    yesno,
+)
+from granseg.report.provenance import provenance as make_provenance
 
 __all__ = ["OUTPUTS", "build_report", "report_data", "render"]
 
@@ -58,6 +73,8 @@ def build_report(
     fits_c0: float | None = 0.5,
     force: bool = False,
     progress: bool = True,
+    command: str | None = None,
+    synthetic: bool | None = None,
     **calibrate_kwargs: Any,
 ) -> Path:
     """Write the report of ``campaign`` (directory or Campaign) into folder ``out``.
@@ -65,15 +82,28 @@ def build_report(
     ``calibration`` is a :class:`granseg.calibration.Calibration` to reuse;
     otherwise :func:`granseg.calibration.calibrate` runs with
     ``calibrate_kwargs``. ``fits_c0`` selects the experiments whose A and
-    tau are fitted with the laws (None = all). Returns the HTML path.
+    tau are fitted with the laws (None = all). ``command`` is the command line
+    shown in the provenance (None from the Python API); ``synthetic`` says
+    whether the data were generated rather than measured (None: as the maps
+    tell, :func:`granseg.report.provenance.data_origin`). Returns the HTML path.
     """
     camp = campaign if hasattr(campaign, "maps") else load_campaign(campaign)
     out = prepare_output_dir(out, OUTPUTS, force, folders=["figures"])
     fits = fit_campaign(camp, c0=fits_c0)
-    cal = calibration or calibrate(camp, progress=progress, **calibrate_kwargs)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", CalibrationWarning)
+        cal = calibration or calibrate(camp, progress=progress, **calibrate_kwargs)
+    notes = []
+    for w in caught:  # shown as the caller's filters say (one line from the CLI), and kept for the page
+        warnings.warn_explicit(w.message, w.category, w.filename, w.lineno, source=w.source)
+        if issubclass(w.category, CalibrationWarning):
+            notes.append(str(w.message))
     log = (lambda msg: print(f"[report] {msg}", flush=True)) if progress else None
     figs = save_figures(_draw_figures(camp, fits, cal), out, force=force, log=log)
-    data = report_data(camp, fits, cal, figs)
+    prov = make_provenance(list(camp), directory=getattr(camp, "directory", None), command=command,
+                           synthetic=synthetic)
+    data = report_data(camp, fits, cal, figs, provenance=prov)
+    data["warnings"] = notes
     save_json(out / "report.json", data, force=force)
     text = render(data, out)
     atomic_write(out / "index.html", lambda tmp: tmp.write_text(text, encoding="utf-8"), force=force)
@@ -140,11 +170,15 @@ def _finite(x: Any) -> float | None:
     return float(x) if x is not None and np.isfinite(x) else None
 
 
-def report_data(camp: Any, fits: Any, cal: Any, figures: list[dict[str, str]]) -> dict[str, Any]:
-    """The JSON document of the report: every number the page shows."""
+def report_data(camp: Any, fits: Any, cal: Any, figures: list[dict[str, str]], *,
+                provenance: Mapping[str, Any] | None = None) -> dict[str, Any]:
+    """The JSON document of the report: every number the page shows, and where they come from
+    (``provenance``: :func:`granseg.report.provenance.provenance`, made here when not given)."""
+    prov = dict(provenance or make_provenance(list(camp), directory=getattr(camp, "directory", None)))
     return {
-        "granseg_version": __version__,
-        "created": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
+        "provenance": prov,
+        "granseg_version": prov["granseg_version"],
+        "created": prov["created"],
         "campaign": str(getattr(camp, "directory", "")),
         "experiments": [_experiment(m) for m in camp],
         "fits": fits.to_dict(),
@@ -167,16 +201,26 @@ def _experiment(m: Any) -> dict[str, Any]:
 # --------------------------------------------------------------------------- page
 
 
+def _tidy_numbers(text: str) -> str:
+    """Floats printed with their binary noise (0.13999999999999999) to 4 significant digits."""
+    return re.sub(r"-?\d+\.\d{7,}", lambda m: f"{float(m.group()):.4g}", text)
+
+
 def _summary(d: Mapping[str, Any]) -> str:
     cal = d["calibration"]
     rows = [[esc(k), pm(cal["best"][k], cal["stderr"][k])] for k in cal["best"]]
     rows.append(["mean RMSD at the optimum", num(cal["rmsd_mean"], ".4f")])
     state = "refined by bounded least squares" if cal["refined"] else "best grid point (no refinement)"
-    warn = "" if cal["converged"] else f'<p class="warn">Refinement did not converge: {esc(cal["message"])}</p>'
+    why = str(cal["message"]).removeprefix("not converged: ")
+    warn = "" if cal["converged"] else f'<p class="warn">Refinement did not converge: {esc(why)}</p>'
     s = cal["settings"]
     for k in cal.get("at_bound", []):
-        warn += (f'<p class="warn">{esc(k)} ended on a bound of its range {esc(str(s["bounds"][k]))}: '
+        warn += (f'<p class="warn">{esc(k)} ended on a bound of its range {nums(s["bounds"][k])}: '
                  "the optimum may lie beyond it (widen the bounds).</p>")
+    shown = set(cal.get("at_bound", []))
+    for note in d.get("warnings", []):
+        if not any(f"refined {k} =" in note for k in shown):  # those just said, in the page's words
+            warn += f'<p class="warn">Warning: {esc(_tidy_numbers(note.removeprefix("calibrate: ")))}</p>'
     return (f"<h2>Calibrated parameters</h2><p class='key'>Optimum {state} "
             f"(&plusmn; one standard error from the Jacobian).</p>{warn}"
             + table(["parameter", "value"], rows)
@@ -223,7 +267,7 @@ def _per_experiment(d: Mapping[str, Any]) -> str:
         return ""
     keys = list(d["calibration"]["best"])
     rows = [[esc(n), *(pm(p["best"][k], p["stderr"][k]) for k in keys), num(p["rmsd"], ".3f"),
-             "yes" if p["converged"] else "no"] for n, p in per.items()]
+             yesno(p["converged"])] for n, p in per.items()]
     return ("<h2>Each experiment's own optimum</h2>"
             + table(["experiment", *map(esc, keys), "RMSD", "converged"], rows))
 
@@ -232,17 +276,20 @@ def _laws(d: Mapping[str, Any]) -> str:
     f = d["fits"]
     parts = ["<h2>Bottom-concentration laws</h2>"]
     sel = ", ".join(map(esc, f["selected"])) or "none"
-    parts.append(f"<p>Experiments used (c<sub>0</sub> = {num(f['c0'])}): {sel}.</p>")
+    parts.append(f"<p>Experiments used (c<sub>0</sub> = {num(f['c0'])}): {sel}. RMSE: root-mean-square "
+                 "difference between the law and the fitted A or &tau; of those experiments.</p>")
     rows = []
-    for key, label in (("beta", "A = 1 &minus; 1/(2 &delta;<sub>R</sub><sup>&beta;</sup>)"),
-                       ("tau", "&tau; = &tau;<sub>1</sub> exp(&minus;&lambda;(&delta;<sub>R</sub> &minus; 1))")):
+    for key, label, unit in (("beta", "A = 1 &minus; 1/(2 &delta;<sub>R</sub><sup>&beta;</sup>)", "[-]"),
+                             ("tau", "&tau; = &tau;<sub>1</sub> exp(&minus;&lambda;(&delta;<sub>R</sub> &minus; 1))",
+                              "s")):
         law = f[key]
         if law is None:
             rows.append([label, "not fitted", "&ndash;"])
             continue
         pars = ", ".join(f"{esc(k)} = {pm(v, law['stderr'][k])}" for k, v in law["params"].items())
-        rows.append([label, pars, num(law["mse"], ".3g")])
-    parts.append(table(["law", "parameters", "MSE"], rows, left=2))
+        rmse = law["mse"] ** 0.5 if law["mse"] is not None and law["mse"] >= 0 else None
+        rows.append([label, pars, f"{num(rmse, '.3g')} {unit}"])
+    parts.append(table(["law", "parameters", "RMSE"], rows, left=2))
     parts += [f"<p class='warn'>{esc(n)}</p>" for n in f["notes"]]
     return "".join(parts)
 
@@ -250,9 +297,11 @@ def _laws(d: Mapping[str, Any]) -> str:
 def render(data: Mapping[str, Any], out: Path) -> str:
     """The HTML page of report document ``data``; figure files are read from ``out``."""
     title = f"granseg calibration: {Path(data['campaign']).name or data['campaign']}"
-    return page(title, "".join([
-        f"<h1>{esc(title)}</h1><p class='meta'>{len(data['experiments'])} experiments from "
-        f"{esc(data['campaign'])}; granseg {esc(data['granseg_version'])}, {esc(data['created'])}. "
+    prov = data.get("provenance") or {"input": data["campaign"], "granseg_version": data["granseg_version"],
+                                      "created": data["created"], "command": None, "synthetic": False}
+    return page(title + (" (SYNTHETIC data)" if prov.get("synthetic") else ""), "".join([
+        f"<h1>{esc(title)}</h1>", provenance_section(prov),
+        f"<p class='meta'>{len(data['experiments'])} experiments. "
         "All numbers are in report.json beside this page.</p>",
         _summary(data), _experiments(data), _factorial(data), _per_experiment(data), _laws(data),
         views_section(data.get("views", [])), figures(data["figures"], out),
