@@ -15,6 +15,8 @@ from typing import Any
 
 import numpy as np
 from matplotlib.figure import Figure
+from matplotlib.lines import Line2D
+from matplotlib.ticker import FuncFormatter
 
 from granseg.fit import FitResult, beta_law, tanh_curve, tau_law
 from granseg.plot.base import (
@@ -24,6 +26,7 @@ from granseg.plot.base import (
     edges,
     map_edges,
     new_figure,
+    pm_text,
     style,
     time_edges,
 )
@@ -49,8 +52,8 @@ def map_comparison(measured: Any, model: np.ndarray, *, H: float, rmsd: float | 
         raise ValueError(f"model map shape {model.shape} != measured {measured.c.shape} ({measured.name})")
     resid = measured.c - model
     with style():
-        fig = new_figure(7.2, 2.4)
-        axes = fig.subplots(1, 4, sharey=True, gridspec_kw={"width_ratios": [0.32, 1, 1, 1]})
+        fig = new_figure(7.2, 2.6)
+        axes = fig.subplots(1, 4, sharey=True, gridspec_kw={"width_ratios": [0.36, 1, 1, 1]})
         te, ze = map_edges(measured, H)
         _initial_panel(axes[0], measured, model, H, initial)
         kw = {"shading": "flat", "rasterized": True}
@@ -58,12 +61,16 @@ def map_comparison(measured: Any, model: np.ndarray, *, H: float, rmsd: float | 
         axes[2].pcolormesh(te, ze, model.T, vmin=0, vmax=1, cmap="viridis", **kw)
         lim = max(float(np.nanmax(np.abs(resid))), 1e-3)
         m3 = axes[3].pcolormesh(te, ze, resid.T, vmin=-lim, vmax=lim, cmap="RdBu_r", **kw)
-        for ax, title in zip(axes[1:], ("measured", "model", "measured - model"), strict=True):
+        for ax, title in zip(axes[1:], ("measured", "model", "measured $-$ model"), strict=True):
             ax.set_title(title)
             ax.set_xlabel(T_LABEL)
             ax.set_ylim(ze[0], ze[-1])
+        # the initial panel is too narrow for its legend: one row under the figure, inside it
+        fig.legend(*axes[0].get_legend_handles_labels(), loc="outside lower left", ncols=3, fontsize=6.5,
+                   handlelength=1.2, columnspacing=1.2, title="initial profile:", title_fontsize=6.5,
+                   alignment="left")
         fig.colorbar(m1, ax=axes[1:3], label=C_LABEL, shrink=0.9, pad=0.01)
-        fig.colorbar(m3, ax=axes[3], label=r"residual $\Delta c$ [-]", shrink=0.9, pad=0.01)
+        fig.colorbar(m3, ax=axes[3], label=r"measured $-$ model $\Delta c$ [-]", shrink=0.9, pad=0.01)
         head = f"{measured.name}: {measured.heavy}/{measured.light}, " \
                rf"$\delta_R$ = {measured.delta_R:.2f}, $c_0$ = {measured.c0:.2f}"
         fig.suptitle(head + ("" if rmsd is None else f", RMSD = {rmsd:.3f}"), fontsize=9)
@@ -77,42 +84,77 @@ def _initial_panel(ax: Any, measured: Any, model: np.ndarray, H: float,
     if initial is not None:
         ax.plot(initial[1], np.asarray(initial[0]) / H, "-", color="#0072B2", lw=1, label="model")
     ax.set_xlim(-0.05, 1.05)
-    ax.set_xticks([0, 0.5, 1])
+    ax.set_xticks([0, 1], ["0", "1"])  # a narrow panel: two labels do not collide
+    ax.set_xticks([0.5], minor=True)
     ax.set_xlabel(r"$c(t_0)$ [-]")
     ax.set_ylabel(H_LABEL)
     ax.set_title("initial", loc="left")
-    ax.legend(loc="lower left", bbox_to_anchor=(-0.1, -0.62), fontsize=6.5, handlelength=1)
 
 
 # --------------------------------------------------------------------------- curves
 
 
-def bottom_fits(maps: Sequence[Any], fits: Mapping[str, FitResult]) -> Figure:
-    """Bottom-layer series c[:, 0] of each map (markers) with its tanh fit (dashed).
+def _by_density_ratio(maps: Sequence[Any]) -> list[tuple[float, list[Any]]]:
+    """The maps grouped by density ratio (to 2 decimals), in increasing delta_R."""
+    groups: dict[float, list[Any]] = {}
+    for m in maps:
+        groups.setdefault(round(float(m.delta_R), 2), []).append(m)
+    return sorted(groups.items())
 
-    Maps without a fit in ``fits`` are drawn without a curve.
+
+def _log_times(t: np.ndarray, n: int) -> np.ndarray:
+    """Indices of about ``n`` samples of the positive times ``t`` [s], evenly spaced in log t."""
+    pos = np.flatnonzero(t > 0)
+    if pos.size <= n:
+        return pos
+    grid = np.geomspace(t[pos[0]], t[pos[-1]], n)
+    return np.unique(pos[np.clip(np.searchsorted(t[pos], grid), 0, pos.size - 1)])
+
+
+def bottom_fits(maps: Sequence[Any], fits: Mapping[str, FitResult]) -> Figure:
+    """Bottom-layer series c[:, 0] of each map (markers) with its tanh fit (lines).
+
+    Small multiples, one panel per density ratio, so that a campaign of 16
+    experiments stays readable: within a panel each experiment has its own
+    colour and its name in the panel's legend. Time runs on a log axis (from
+    the first sample after t = 0), so the rise, which takes a few per cent of a
+    long run, is as visible as the plateau. Maps without a fit in ``fits``
+    are drawn without a curve.
     """
+    groups = _by_density_ratio(maps)
+    cols = min(3, len(groups))
+    rows = int(np.ceil(len(groups) / cols))
     with style():
-        fig = new_figure(5.2, 3.3)
-        ax = fig.subplots()
-        for i, m in enumerate(maps):
-            color = f"C{i % 8}"
-            every = max(1, m.n_times // 60)
-            ax.plot(m.t[::every], m.bottom[::every], "o", ms=2.5, alpha=0.55, color=color,
-                    mec="none")
-            label = rf"{m.name} ($\delta_R$ = {m.delta_R:.2f})"
-            if m.name in fits:
-                f = fits[m.name]
-                tt = np.linspace(m.t[0], m.t[-1], 400)
-                ax.plot(tt, tanh_curve(tt, f["A"], f["t0"], f["tau"]), "--", color=color,
-                        label=label + ("" if f.converged else " (not converged)"))
-            else:
-                ax.plot([], [], "o", color=color, label=label + " (no fit)")
-        ax.set_xlabel(T_LABEL)
-        ax.set_ylabel(r"bottom-layer concentration $c_b$ [-]")
-        ax.set_ylim(-0.02, 1.02)
-        ax.legend(loc="center left", bbox_to_anchor=(1.0, 0.5), ncols=1 if len(maps) <= 12 else 2)
-        ax.set_title("bottom concentration: data (markers) and tanh fits (dashed)", loc="left")
+        fig = new_figure(7.2 if cols > 1 else 3.5, 1.75 * rows + 0.45)
+        axes = np.atleast_1d(fig.subplots(rows, cols, sharey=True, squeeze=False)).ravel()
+        for ax, (dR, group) in zip(axes, groups, strict=False):
+            for i, m in enumerate(group):
+                color = f"C{i % 8}"
+                t = np.asarray(m.t, dtype=float)
+                pick = _log_times(t, 50)
+                ax.plot(t[pick], np.asarray(m.bottom)[pick], "o", ms=2.2, alpha=0.5, color=color, mec="none")
+                label = m.name
+                if m.name in fits:
+                    f = fits[m.name]
+                    tt = np.geomspace(t[t > 0][0], t[-1], 300) if np.any(t > 0) else t
+                    ax.plot(tt, tanh_curve(tt, f["A"], f["t0"], f["tau"]), "-", lw=1.1, color=color,
+                            label=label + ("" if f.converged else " (not conv.)"))
+                else:
+                    ax.plot([], [], "o", color=color, label=label + " (no fit)")
+            ax.set_xscale("log")
+            ax.set_ylim(-0.03, 1.03)
+            pairs = sorted({f"{m.heavy}/{m.light}" for m in group})
+            ax.set_title(rf"$\delta_R$ = {dR:.2f}: " + ", ".join(pairs), loc="left", fontsize=7.5)
+            ax.tick_params(labelsize=7)
+            ax.legend(loc="best", fontsize=6, handlelength=1.0, borderaxespad=0.2, labelspacing=0.2)
+        for ax in axes[len(groups):]:
+            ax.set_visible(False)
+        for ax in axes[::cols]:
+            ax.set_ylabel("bottom layer $c_b$ [-]", fontsize=7.5)
+        for ax in axes[max(0, len(groups) - cols):len(groups)]:
+            ax.set_xlabel("time t [s] (log)", fontsize=7.5)
+        head = "Bottom concentration by density ratio" if len(groups) > 1 else "Bottom concentration"
+        fig.suptitle(f"{head}:{' ' if cols > 1 else chr(10)}data (markers) and tanh fits (lines)", fontsize=8.5)
     return fig
 
 
@@ -125,12 +167,17 @@ def laws(fits: Any) -> Figure:
     with style():
         fig = new_figure(6.4, 2.7)
         ax_a, ax_t = fig.subplots(1, 2)
-        _law_panel(ax_a, fits, "A", fits.beta, "final bottom concentration $A$ [-]")
-        _law_panel(ax_t, fits, "tau", fits.tau, r"time to 88 % $\tau$ [s]")
+        _law_panel(ax_a, fits, "A", fits.beta, "final bottom concentration $A$ [-]", "")
+        _law_panel(ax_t, fits, "tau", fits.tau, r"time to 88 % $\tau$ [s]", " s")
     return fig
 
 
-def _law_panel(ax: Any, fits: Any, key: str, law: FitResult | None, ylabel: str) -> None:
+def _plain(x: float) -> str:
+    """A positive number to two significant digits without an exponent (212 s, not 2.1e+02 s)."""
+    return f"{x:.0f}" if abs(x) >= 100 else f"{x:.2g}"
+
+
+def _law_panel(ax: Any, fits: Any, key: str, law: FitResult | None, ylabel: str, unit: str) -> None:
     names = list(fits.tanh)
     x = np.array([fits.delta_R[n] for n in names])
     y = np.array([fits.tanh[n][key] for n in names])
@@ -149,7 +196,7 @@ def _law_panel(ax: Any, fits: Any, key: str, law: FitResult | None, ylabel: str)
         else:
             yy = tau_law(xx, law["tau_1"], law["lam"])
             lab = rf"$\tau_1 e^{{-\lambda(\delta_R-1)}}$, $\lambda$ = {law['lam']:.2f} $\pm$ {law.stderr['lam']:.2f}"
-        ax.plot(xx, yy, "-", color="C1", label=lab + f"\nMSE = {law.mse:.2g}")
+        ax.plot(xx, yy, "-", color="C1", label=lab + f"\nRMSE = {_plain(np.sqrt(law.mse))}{unit}")
     ax.set_xlabel(r"density ratio $\delta_R = \rho_h/\rho_l$ [-]")
     ax.set_ylabel(ylabel)
     ax.legend(loc="best")
@@ -165,7 +212,9 @@ def rmsd_grid(points: Sequence[Mapping[str, float]], rmsd: Sequence[float], *,
 
     ``points`` are the grid points (dicts with the same two keys, full
     factorial); ``best``/``stderr`` mark the refined optimum with error bars.
-    Grid values are drawn evenly spaced with their values as tick labels.
+    Grid values are the tick labels; where the optimum +- its error lies
+    outside the grid, the axes extend to it with ticks continuing at the
+    grid's step, and the optimum's values are written below the map.
     """
     keys = list(points[0])
     if len(keys) != 2:
@@ -175,22 +224,55 @@ def rmsd_grid(points: Sequence[Mapping[str, float]], rmsd: Sequence[float], *,
     table = np.full((len(ys), len(xs)), np.nan)
     for p, r in zip(points, rmsd, strict=True):
         table[ys.index(p[keys[1]]), xs.index(p[keys[0]])] = r
+    err = {k: float((stderr or {}).get(k) or 0.0) for k in keys}
+    err = {k: v if np.isfinite(v) else 0.0 for k, v in err.items()}
     with style():
-        fig = new_figure(3.9, 3.1)
+        fig = new_figure(3.9, 3.4 if best is not None else 3.1)
         ax = fig.subplots()
-        im = ax.pcolormesh(edges(np.array(xs)), edges(np.array(ys)), table, cmap="magma_r",
-                           shading="flat")
+        xe, ye = edges(np.array(xs)), edges(np.array(ys))
+        im = ax.pcolormesh(xe, ye, table, cmap="magma_r", shading="flat")
         _annotate_cells(ax, xs, ys, table)
+        for axis, vals, cell_edges, key, lim in ((ax.xaxis, xs, xe, keys[0], ax.set_xlim),
+                                                 (ax.yaxis, ys, ye, keys[1], ax.set_ylim)):
+            lo, hi = float(cell_edges[0]), float(cell_edges[-1])
+            if best is not None:
+                b = float(best[key])
+                span = hi - lo
+                # the optimum +- its error, within two grid spans of the grid (a huge error is cut)
+                lo = min(lo, max(b - err[key], lo - 2 * span) - 0.04 * span)
+                hi = max(hi, min(b + err[key], hi + 2 * span) + 0.04 * span)
+            lim(lo, hi)
+            ticks = _grid_ticks(vals, lo, hi)
+            places = max((len(f"{t:.6g}".partition(".")[2]) for t in ticks), default=0)
+            axis.set_ticks(ticks)
+            axis.set_major_formatter(FuncFormatter(lambda v, _, d=places: f"{v:.{d}f}"))
         if best is not None:
-            _mark_best(ax, best, stderr or {}, keys)
-            title += r"; $\star$ refined optimum $\pm$ 1 s.e."
-        ax.set_xticks(xs)
-        ax.set_yticks(ys)
+            _mark_best(ax, best, err, keys)
+            fig.legend(handles=[Line2D([], [], ls="none", marker="*", ms=9, color="#00A0FF", mec="k", mew=0.5)],
+                       labels=[_best_label(best, err, keys)], loc="outside lower center", fontsize=7,
+                       handletextpad=0.3)
         ax.set_xlabel(_param_label(keys[0]))
         ax.set_ylabel(_param_label(keys[1]))
         ax.set_title(title, loc="left")
         fig.colorbar(im, ax=ax, label="RMSD [-]")
     return fig
+
+
+def _grid_ticks(vals: Sequence[float], lo: float, hi: float) -> list[float]:
+    """The grid values, continued at the grid's end steps out to [lo, hi]."""
+    ticks = [float(v) for v in vals]
+    if len(ticks) > 1:
+        step_lo, step_hi = ticks[1] - ticks[0], ticks[-1] - ticks[-2]
+        while ticks[-1] + step_hi <= hi + 1e-9 * step_hi:
+            ticks.append(round(ticks[-1] + step_hi, 12))
+        while ticks[0] - step_lo >= lo - 1e-9 * step_lo:
+            ticks.insert(0, round(ticks[0] - step_lo, 12))
+    return ticks
+
+
+def _best_label(best: Mapping[str, float], err: Mapping[str, float], keys: list) -> str:
+    names = {"k": "$k$", "delta_over_H": r"$\delta/H$"}
+    return "refined optimum $\\pm$ 1 s.e.:\n" + ", ".join(f"{names.get(k, k)} = {pm_text(float(best[k]), err[k])}" for k in keys)
 
 
 def _annotate_cells(ax: Any, xs: list, ys: list, table: np.ndarray) -> None:
@@ -201,7 +283,7 @@ def _annotate_cells(ax: Any, xs: list, ys: list, table: np.ndarray) -> None:
             v = table[j, i]
             dark = (v - lo) > 0.55 * (hi - lo) if hi > lo else False
             weight = "bold" if (j, i) == i_min else "normal"
-            ax.text(x, y, f"{v:.3f}", ha="center", va="center", fontsize=7.5, weight=weight,
+            ax.text(x, y, f"{v:.3f}", ha="center", va="center", fontsize=7, weight=weight,
                     color="white" if dark else "black")
 
 
@@ -209,7 +291,7 @@ def _mark_best(ax: Any, best: Mapping[str, float], stderr: Mapping[str, float], 
     x, y = best[keys[0]], best[keys[1]]
     ax.errorbar([x], [y], xerr=[stderr.get(keys[0], 0.0) or 0.0],
                 yerr=[stderr.get(keys[1], 0.0) or 0.0], fmt="*", ms=11, color="#00A0FF",
-                mec="white", mew=0.6, capsize=3)
+                mec="k", mew=0.5, capsize=3)
 
 
 _LABELS = {"k": "friction correction $k$ [-]", "delta_over_H": r"shear-band decay $\delta/H$ [-]",
@@ -307,7 +389,7 @@ def _profile_panel(ax: Any, sol: Any, H: float, steady: tuple[np.ndarray, np.nda
         ax.plot(steady[1], np.asarray(steady[0]) / H, "k--", lw=1, label="steady state")
     ax.set_xlim(-0.03, 1.03)
     ax.set_ylim(0, 1)
-    ax.set_xlabel(C_LABEL)
+    ax.set_xlabel(r"heavy share $c$ [-]")  # the full label is wider than this panel
     ax.set_ylabel(H_LABEL)
     ax.set_title("profiles", loc="left")
     ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.3), ncol=2, fontsize=6.5,

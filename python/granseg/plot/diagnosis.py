@@ -1,9 +1,12 @@
 """The evidence figures of a diagnosis (:class:`granseg.diagnosis.Diagnosis`).
 
 Each function takes the diagnosis and returns a :class:`matplotlib.figure.Figure`
-in granseg's style (or None when it does not apply: ``departure`` only when
-the law corrections were tried, ``views`` only when a run's other view lies beside its map); :data:`FIGURES` maps each figure's name to its function,
-in the order the diagnosis report shows them.
+in granseg's style (or None when it does not apply: ``candidates`` only when
+catalogue causes were fitted, ``departure`` only when the law corrections
+were tried, ``views`` only when a run's other view lies beside its map);
+:data:`FIGURES` maps each figure's name to its function, in the order the
+diagnosis report shows them. Residuals are measured minus model throughout,
+as in the calibration report.
 
 Example::
 
@@ -19,12 +22,14 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from matplotlib.colors import TwoSlopeNorm
 from matplotlib.figure import Figure
-from matplotlib.ticker import FixedLocator, NullFormatter, NullLocator, ScalarFormatter
+from matplotlib.lines import Line2D
+from matplotlib.patches import Patch
+from matplotlib.ticker import FixedLocator, MaxNLocator, NullFormatter, NullLocator, ScalarFormatter
 
 from granseg.fitting.causes import M_TILDE_REF
 from granseg.maps import views_of
 from granseg.model import defaults
-from granseg.plot.base import C_LABEL, H_LABEL, STYLE, T_LABEL, map_edges, new_figure, style
+from granseg.plot.base import H_LABEL, STYLE, T_LABEL, map_edges, new_figure, style
 from granseg.plot.views import view_comparison
 
 if TYPE_CHECKING:
@@ -41,28 +46,36 @@ def _bed_height(d: Diagnosis, m: Any) -> float:
 
 
 def residual_maps(d: Diagnosis) -> Figure:
-    """Baseline residual (model - measured) of every experiment, time [s] by height H*."""
+    """Baseline residual (measured - model) of every experiment, time [s] by height H*.
+
+    The sign is the calibration report's (:func:`granseg.plot.map_comparison`):
+    red where more heavy grains were measured than modelled.
+    """
     n = len(d.maps)
     cols = min(4, n)
     rows = int(np.ceil(n / cols))
     with style():
-        fig = new_figure(7.2, 1.45 * rows + 0.5)
+        fig = new_figure(7.2, 1.45 * rows + 0.6)
         axes = np.atleast_1d(fig.subplots(rows, cols, sharey=True)).ravel()
         norm = TwoSlopeNorm(0.0, -0.5, 0.5)
         mesh = None
         for ax, m, lay in zip(axes, d.maps, d.baseline.layers, strict=False):
-            mesh = ax.pcolormesh(*map_edges(m, _bed_height(d, m)), (lay - m.c).T, cmap="RdBu_r", norm=norm, rasterized=True)
+            mesh = ax.pcolormesh(*map_edges(m, _bed_height(d, m)), (m.c - lay).T, cmap="RdBu_r", norm=norm,
+                                 rasterized=True)
             ax.set_title(rf"{m.name}, $\tilde M$ = {m.M_tilde:.2f}", fontsize=7.5)
             ax.tick_params(labelsize=6.5)
+            ax.xaxis.set_major_locator(MaxNLocator(4))
         for ax in axes[n:]:
             ax.set_visible(False)
         for ax in axes[::cols]:
             ax.set_ylabel(H_LABEL, fontsize=7)
         for ax in axes[max(0, n - cols):n]:
             ax.set_xlabel(T_LABEL, fontsize=7)
-        fig.colorbar(mesh, ax=axes.tolist(), label=r"baseline model $-$ measured, $\Delta c$ [-]",
-                     shrink=0.6, pad=0.01)
-        fig.suptitle("Baseline residuals (red: model shows too many heavy grains)", fontsize=9)
+        cb = fig.colorbar(mesh, ax=axes.tolist(), shrink=0.6, pad=0.01, extend="both")
+        cb.set_label(r"measured $-$ baseline model, $\Delta c$ [-]", fontsize=7.5)
+        cb.ax.tick_params(labelsize=6.5)
+        fig.suptitle("Baseline residuals, measured $-$ model (red: more heavy grains measured than modelled)",
+                     fontsize=8.5)
     return fig
 
 
@@ -94,7 +107,7 @@ def covariates(d: Diagnosis) -> Figure:
         _log_ticks(a.xaxis, mt)
         _log_ticks(a.yaxis, per["delta_over_H_opt"])
         a.set_xlabel(r"normalised load $\tilde M = M_w/M_g$ [-]")
-        a.set_ylabel(r"own optimal $\delta/H$ ($k$ of baseline) [-]")
+        a.set_ylabel(r"own optimal $\delta/H$, $k$ fixed [-]")
         a.set_title(f"(a) band width vs load, Spearman {ev['spearman']['delta_opt_vs_M_tilde']:+.2f}", loc="left")
         a.legend(loc="best")
         b.scatter(cov["delta_R"], per["k_opt"], c=c, s=22, zorder=3)
@@ -110,7 +123,7 @@ def covariates(d: Diagnosis) -> Figure:
         e.scatter(mt, ev["depth_mean"]["excess_while_mixed"], c=c, s=22, zorder=3)
         e.axhline(0, color="0.5", lw=0.8)
         e.set_xlabel(r"normalised load $\tilde M$ [-]")
-        e.set_ylabel(r"measured depth-mean $-\ c_0$ while mixed [-]")
+        e.set_ylabel(r"depth-mean $c$ $-$ $c_0$, mixed [-]")
         e.set_title(f"(c) wall excess, Spearman {ev['spearman']['depth_excess_vs_M_tilde']:+.2f}", loc="left")
         _structure_panel(f, d)
     return fig
@@ -143,32 +156,69 @@ def _abs_by_time(d: Diagnosis, layers: Sequence[np.ndarray]) -> list[float]:
 
 
 def _log_ticks(axis: Any, values: Any) -> None:
-    """Plain-number ticks on a log ``axis`` spanning ``values`` (1-2-3-5 steps, no minor ticks)."""
-    lo, hi = float(np.min(values)), float(np.max(values))
-    cands = [0.1, 0.15, 0.2, 0.3, 0.4, 0.5, 0.7, 1, 1.5, 2, 3, 4, 5, 7, 10]
-    axis.set_major_locator(FixedLocator([t for t in cands if lo / 1.25 <= t <= hi * 1.25]))
-    axis.set_major_formatter(ScalarFormatter())
+    """Plain-number ticks on a log ``axis`` spanning ``values``, no minor ticks.
+
+    1-1.5-2-3-4-5-7 steps (1-2-5 over more than a factor 20, decades over more
+    than 1000); over a narrow span, where those leave fewer than three ticks
+    inside it, evenly spaced round numbers, so that every panel has labelled ticks.
+    """
+    v = np.asarray(values, dtype=float)
+    v = v[np.isfinite(v) & (v > 0)]
+    if v.size == 0:
+        return
+    lo, hi = float(v.min()), float(v.max())
+    decades = 10.0 ** np.arange(np.floor(np.log10(lo)) - 1, np.ceil(np.log10(hi)) + 1)
+    steps = (1, 1.5, 2, 3, 4, 5, 7) if hi / lo <= 20 else (1, 2, 5) if hi / lo <= 1000 else (1,)
+    cands = sorted({round(float(m * d), 12) for d in decades for m in steps})
+    ticks = [t for t in cands if lo / 1.1 <= t <= hi * 1.1]
+    if len([t for t in ticks if lo <= t <= hi]) >= 3 or hi / lo > 3:
+        axis.set_major_locator(FixedLocator(ticks or [t for t in cands if lo / 1.25 <= t <= hi * 1.25]))
+    else:
+        axis.set_major_locator(MaxNLocator(4, steps=[1, 2, 2.5, 5, 10]))
+    fmt = ScalarFormatter()
+    fmt.set_useOffset(False)
+    axis.set_major_formatter(fmt)
     axis.set_minor_locator(NullLocator())
     axis.set_minor_formatter(NullFormatter())
 
 
-def candidates(d: Diagnosis) -> Figure:
-    """Held-out gain of each candidate, relative to the baseline's held-out RMSD, with the threshold."""
+def candidates(d: Diagnosis) -> Figure | None:
+    """Held-out gain of each candidate, relative to the baseline's held-out RMSD, with the threshold.
+
+    The bottom axis gives the gain in % of the baseline's held-out RMSD (the
+    unit of the threshold), the top axis the same gain as an RMSD difference
+    [-] (the unit of the page's table). None when no candidate was fitted
+    (a diagnosis of a flagged window).
+    """
     r = d.result
+    if not r["candidates"]:
+        return None
     base = r["baseline"]["rmsd_held_out_mean"]
     cands = sorted(r["candidates"], key=lambda c: c["gain_held_out"])
     thr = 100 * r["decision"]["gain_threshold"]
     with style():
-        fig = new_figure(5.0, 0.35 * len(cands) + 1.2)
+        fig = new_figure(5.0, 0.3 * len(cands) + 1.6)
         ax = fig.subplots()
         vals = [100 * c["gain_held_out"] / base for c in cands]
-        cols = ["#009E73" if c["name"] == r["cause"] else "#999999" for c in cands]
+        cols = ["#009E73" if c["name"] == r["cause"] else "#56B4E9" if v > thr else "#999999"
+                for c, v in zip(cands, vals, strict=True)]
         ax.barh([c["name"].replace("_", " ") for c in cands], vals, color=cols)
-        ax.axvline(thr, color="#D55E00", ls="--", lw=1, label=f"significance threshold ({thr:.1f} %)")
+        ax.axvline(thr, color="#D55E00", ls="--", lw=1)
         ax.axvline(0, color="k", lw=0.6)
-        ax.set_xlabel("held-out RMSD gain over the baseline [% of its held-out RMSD]")
-        ax.set_title(f"Leave-one-experiment-out comparison (baseline held out {base:.3f})", loc="left")
-        ax.legend(loc="lower right")
+        lo, hi = min(0.0, *vals), max(thr, *vals)
+        ax.set_xlim(lo - 0.05 * (hi - lo), hi + 0.05 * (hi - lo))
+        ax.set_xlabel("held-out gain [% of the baseline's held-out RMSD]")
+        top = ax.secondary_xaxis("top", functions=(lambda p: p * base / 100, lambda g: g * 100 / base))
+        top.set_xlabel("held-out gain, baseline minus candidate RMSD [-]", fontsize=7.5)
+        top.tick_params(labelsize=7)
+        top.xaxis.set_major_locator(MaxNLocator(5))
+        kinds = {"#009E73": "named cause", "#56B4E9": "above, not named", "#999999": "below threshold"}
+        handles = [Patch(color=k, label=v) for k, v in kinds.items() if k in cols]
+        handles.append(Line2D([], [], color="#D55E00", ls="--", lw=1,
+                              label=f"threshold {thr:.1f} % = {thr * base / 100:.4f}"))
+        fig.legend(handles=handles, loc="outside lower center", ncols=4, fontsize=6.5, handlelength=1.2,
+                   columnspacing=1.0)
+        fig.suptitle(f"Leave-one-experiment-out comparison (baseline held-out RMSD {base:.3f})", fontsize=8.5)
     return fig
 
 
@@ -178,20 +228,22 @@ def gain(d: Diagnosis) -> Figure:
     names = list(r["baseline"]["rmsd"])
     x = np.arange(len(names))
     with style():
-        fig = new_figure(7.2, 2.8)
+        fig = new_figure(7.2, 2.9)
         ax = fig.subplots()
         ax.bar(x - 0.27, [r["baseline"]["rmsd"][n] for n in names], 0.27, color="#999999", label="baseline")
         if r["extended"] is not None:
             e = r["extended"]
-            ax.bar(x, [e["rmsd"][n] for n in names], 0.27, color="#0072B2", label=f"{e['model']} (in sample)")
+            label = e["model"].removeprefix("law_").replace("_", " ")
+            ax.bar(x, [e["rmsd"][n] for n in names], 0.27, color="#0072B2", label=f"{label} (in sample)")
             ax.bar(x + 0.27, [e["rmsd_held_out"][n] for n in names], 0.27, color="#56B4E9",
-                   label="same, held out")
+                   label=f"{label} (held out)")
         ax.plot(x, [r["noise"]["per_experiment"][n] for n in names], "k_", ms=14, mew=1.6,
                 label="noise floor")
-        ax.set_xticks(x, names, rotation=45, ha="right", fontsize=7)
+        ax.set_xticks(x, names, rotation=45 if len(names) > 6 else 0, ha="right" if len(names) > 6 else "center",
+                      fontsize=7)
         ax.set_ylabel("RMSD [-]")
         ax.set_title("Misfit per experiment", loc="left")
-        ax.legend(ncols=2, loc="upper left", fontsize=7)
+        fig.legend(loc="outside upper right", ncols=4, fontsize=7)
     return fig
 
 
@@ -217,21 +269,21 @@ def before_after(d: Diagnosis) -> Figure:
     """Measured map, baseline model and extended model for the experiment that gains most."""
     i = _showcase(d)
     m = d.maps[i]
-    panels = [("measured", m.c), (f"baseline, RMSD {d.baseline.rmsd[i]:.3f}", d.baseline.layers[i])]
+    panels = [("measured\n", m.c), (f"baseline\nRMSD {d.baseline.rmsd[i]:.3f}", d.baseline.layers[i])]
     f = _extended_fit(d)
     if f is not None:
         label = f.effect.name.removeprefix("law_").replace("_", " ")
-        panels.append((f"{label}, RMSD {f.rmsd[i]:.3f}", f.layers[i]))
+        panels.append((f"{label}\nRMSD {f.rmsd[i]:.3f}", f.layers[i]))
     te, ze = map_edges(m, _bed_height(d, m))
     with style():
-        fig = new_figure(7.2, 2.3)
+        fig = new_figure(7.2, 2.5)
         axes = fig.subplots(1, len(panels), sharey=True)
         for ax, (title, arr) in zip(axes, panels, strict=True):
             mesh = ax.pcolormesh(te, ze, arr.T, vmin=0, vmax=1, cmap="viridis", rasterized=True)
             ax.set_title(title, fontsize=8)
             ax.set_xlabel(T_LABEL)
         axes[0].set_ylabel(H_LABEL)
-        fig.colorbar(mesh, ax=list(axes), label=C_LABEL, shrink=0.9, pad=0.01)
+        fig.colorbar(mesh, ax=list(axes), label=r"heavy share $c$ [-]", shrink=0.9, pad=0.01)
         fig.suptitle(f"{m.name}: {m.heavy}/{m.light}, $c_0$ = {m.c0:.2f}, "
                      rf"$\tilde M$ = {m.M_tilde:.2f}", fontsize=9)
     return fig
@@ -268,7 +320,7 @@ def departure(d: Diagnosis) -> Figure | None:
     base = float(np.mean(d.held_out["baseline"]))
     named = d.verdict.law == name
     with style():
-        fig = new_figure(7.2, 2.8)
+        fig = new_figure(7.2, 3.0)
         ax, bx = fig.subplots(1, 2, gridspec_kw={"width_ratios": [1.25, 1.0]})
         x = np.asarray(sh["x"])
         ax.fill_between(x, sh["lo"], sh["hi"], color="#56B4E9", alpha=0.35, lw=0, label="95 % band")
@@ -292,26 +344,28 @@ def departure(d: Diagnosis) -> Figure | None:
         y = np.arange(len(names))
         insample = [100 * (d.baseline.rmsd_mean - ow.fits[n].rmsd_mean) / d.baseline.rmsd_mean for n in names]
         held = [100 * ow.gains[n] / base if n in ow.gains else np.nan for n in names]
-        bx.barh(y + 0.2, insample, 0.4, color="#999999", label="in sample")
-        bx.barh(y - 0.2, held, 0.4, color=["#009E73" if n == d.verdict.law else "#56B4E9" for n in names],
+        bx.barh(y + 0.18, insample, 0.36, color="#999999", label="in sample")
+        bx.barh(y - 0.18, held, 0.36, color=["#009E73" if n == d.verdict.law else "#56B4E9" for n in names],
                 label="held out (refitted)")
         thr = 100 * d.thresholds["gain"]
-        bx.axvline(thr, color="#D55E00", ls="--", lw=1, label=f"threshold ({thr:.0f} %)")
+        bx.axvline(thr, color="#D55E00", ls="--", lw=1, label=f"threshold ({thr:.1f} %)")
         bx.axvline(0, color="k", lw=0.6)
+        bx.set_ylim(-0.7, len(names) - 0.3)
         bx.set_yticks(y, [n.removeprefix("law_").replace("_", " ") for n in names], fontsize=7)
-        bx.set_xlabel("RMSD gain over the baseline [%]")
+        bx.set_xlabel("gain over the baseline [% of its RMSD]", fontsize=8)
         bx.set_title("Each law corrected in turn", loc="left", fontsize=8.5)
-        bx.legend(fontsize=6.5, loc="lower right")
+        bx.legend(fontsize=6.5, loc="upper center", bbox_to_anchor=(0.5, -0.25), ncols=3, handlelength=1.2,
+                  columnspacing=1.0)
     return fig
 
 
-#: The diagnosis figures by name, in the order the report shows them.
 def views(d: Diagnosis) -> Figure | None:
     """Each map's camera view against its bulk, where the run's other view lies beside it."""
     runs = [v for v in map(views_of, d.maps) if v]
     return view_comparison(runs) if runs else None
 
 
+#: The diagnosis figures by name, in the order the report shows them.
 FIGURES: dict[str, Callable[[Diagnosis], Figure | None]] = {
     "residual_maps": residual_maps,
     "covariates": covariates,
