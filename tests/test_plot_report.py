@@ -121,6 +121,7 @@ def report_dir(tmp_path_factory):
     for i, (name, rho_h) in enumerate([("C-PP-50", 3500.0), ("G-PP-50", 2450.0), ("POM-PP-50", 1750.0)]):
         m = fake_map(name, rho_h, 10 + i)
         save_map(camp / f"{name}.npz", **{k: v for k, v in m.to_arrays().items()})
+    (camp / "campaign.json").write_text('{"synthetic": true}')  # what granseg.synth.virtual.campaign writes
     out = tmp_path_factory.mktemp("report")
     page = build_report(camp, out, n_cells=60, max_nfev=4, progress=False, force=True)
     return page
@@ -145,6 +146,11 @@ def test_report_files_and_json(report_dir):
         from granseg.report import build_report
 
         build_report(data["campaign"], out)  # refused before any work is done
+    # where the numbers come from, and that they are not measurements
+    prov = data["provenance"]
+    assert prov["synthetic"] and prov["input"] == data["campaign"] and prov["command"] is None
+    assert "SYNTHETIC DATA" in page and "class='banner'" in page and "granseg " + prov["granseg_version"] in page
+    assert "RMSE</th>" in page and ">MSE<" not in page
 
 
 def test_report_in_headless_browser(report_dir, tmp_path):
@@ -203,3 +209,48 @@ def test_both_pages_share_the_html_pieces(report_dir):
         assert text.startswith("<!DOCTYPE html>") and '<div class="scroll"><table>' in text
     assert pages[1].count('<img class="fig"') == 1 and 'href="figures/gain.pdf"' in pages[1]
     assert "RMSD &lt;per&gt; experiment" in pages[1] and "0.0512" in pages[1] and "+0.0010" in pages[1]
+
+
+def test_value_and_error_take_the_errors_digits():
+    from granseg.report.html import nums, pm, pm_text, tidy_pm, yesno
+
+    assert pm_text(1.29e-06, 1.4) == "0.0 ± 1.4"  # a value far below its error reads as zero
+    assert pm_text(0.187, 0.00089) == "0.18700 ± 0.00089"
+    assert pm_text(944.0, 300.0) == "940 ± 300"
+    assert pm_text(1.29e-06, 2e-08) == "(1.290 ± 0.020)e-06"
+    assert pm_text(-1e-9, 0.5) == "0.00 ± 0.50"  # no "-0.00"
+    assert pm_text(0.5, None) == "0.5" and pm_text(0.5, float("nan")) == "0.5"
+    assert pm(0.775, 0.028) == "0.775 &plusmn; 0.028"
+    assert tidy_pm("starts 1.29e-06 ± 1.4 s after; k = 0.734 ± 0.011.") == "starts 0.0 ± 1.4 s after; k = 0.734 ± 0.011."
+    assert nums([0.13999999999999999, 0.26]) == "[0.14, 0.26]"
+    assert (yesno(True), yesno(False)) == ("yes", "no")
+
+
+def test_the_diagnosis_page_states_its_provenance_threshold_and_rivals(tmp_path):
+    from granseg.report import diagnosis
+
+    cands = [{"name": "load_dependent_shear_band", "law": "delta/H = 0.187 ± 0.00089 x M~", "rmsd": 0.12,
+              "rmsd_held_out": 0.123, "gain_held_out": 0.04},
+             {"name": "evolving_shear_band", "law": "t0 = 1.29e-06 ± 1.4 s", "rmsd": 0.146,
+              "rmsd_held_out": 0.158, "gain_held_out": 0.0052},
+             {"name": "spin_up_delay", "law": "-", "rmsd": 0.15, "rmsd_held_out": 0.164, "gain_held_out": -0.0003}]
+    doc = {"cause": "load_dependent_shear_band", "explained": True, "summary": "s.", "noise_floor": 0.121,
+           "noise": {"method": "counts"},
+           "decision": {"reason": "r", "gain_threshold": 0.02, "excess_threshold": 1.06, "coherence_alpha": 1e-3,
+                        "coherence_share": 0.35, "runner_up": "evolving_shear_band",
+                        "best_candidate": "load_dependent_shear_band", "margin_to_runner_up": 0.0348},
+           "baseline": {"params": {"k": 0.79, "delta_over_H": 0.19}, "rmsd_mean": 0.15, "rmsd_held_out_mean": 0.163},
+           "candidates": cands,
+           "provenance": {"input": "camp/", "granseg_version": "9.9", "created": "2026-01-02T03:04:05+00:00",
+                          "command": "granseg diagnose camp/ --report r", "synthetic": True, "origin": "a test"}}
+    page = diagnosis.render(doc, [], tmp_path)
+    assert "SYNTHETIC DATA &mdash; a test" in page and "<code>granseg diagnose camp/ --report r</code>" in page
+    assert "2026-01-02 03:04:05 UTC" in page and "granseg 9.9" in page
+    assert "misfit explained: yes" in page and "True" not in page
+    # the threshold in both units: 2.0 % of the held-out RMSD 0.163 is a gain of 0.0033
+    assert "2.0 %" in page and "0.0033" in page and "+24.5" in page
+    # the other candidate beyond the threshold and the runner-up's margin are on the page
+    assert "besides the named cause" in page and "evolving shear band (+0.0052, +3.2 %)" in page
+    assert "Runner-up: evolving shear band" in page and "0.0348" in page
+    assert "0.0 ± 1.4" in page and "1.29e-06" not in page
+
