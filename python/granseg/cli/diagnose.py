@@ -52,7 +52,7 @@ def run(args: argparse.Namespace) -> int:
     # the outputs carry the provenance, this command line included
     write_outputs(d, report=args.report, json=args.json, force=args.force, command=command_line("diagnose"))
     r = d.result
-    print(f"cause: {r['cause']}  (explained: {str(r['explained']).lower()})")
+    print(f"cause: {r['cause']}  (misfit explained: {'yes' if r['explained'] else 'no'})")
     print(r["summary"])
     g = r["gain"]
     print(f"noise floor {r['noise_floor']:.4f}; mean RMSD baseline {r['baseline']['rmsd_mean']:.4f}; "

@@ -234,9 +234,14 @@ def summary(cause: str, explained: bool, ext: ModelJSON | None, base: BaselineJS
     desc = REGISTRY[cause].description.split(":")[0].split(".")[0]
     tail = ("which brings the misfit down to the noise floor" if explained else
             "but a misfit beyond the noise remains")
+    # A gain on a baseline already inside the noise may be the candidate fitting this campaign's
+    # noise: said loudly rather than hidden (seen on 3 rendered experiments with nothing hidden).
+    caveat = (f" The baseline was already within the noise (held-out RMSD {base['rmsd_held_out_mean']:.3f} "
+              f"<= floor {floor:.3f}): take this cause as a hint to test with more experiments, not a finding."
+              if np.isfinite(floor) and base["rmsd_held_out_mean"] <= floor else "")
     return (f"Cause: {cause.replace('_', ' ')} ({desc.lower()}); fitted law: {ext['law']}. "
             f"It lowers the mean held-out RMSD from {base['rmsd_held_out_mean']:.3f} to "
-            f"{ext['rmsd_held_out_mean']:.3f} over {n} experiments (noise floor {floor:.3f}), {tail}.")
+            f"{ext['rmsd_held_out_mean']:.3f} over {n} experiments (noise floor {floor:.3f}), {tail}.{caveat}")
 
 
 def build_result(d: Diagnosis) -> DiagnosisJSON:

@@ -129,7 +129,7 @@ def diagnose(
     excess_threshold: float = selection.EXCESS_THRESHOLD,
     coherence_alpha: float = selection.COHERENCE_ALPHA,
     coherence_share: float = selection.COHERENCE_SHARE,
-    progress: bool = True,
+    progress: bool | str = True,
     accept_flagged: bool = False,
     open_world: bool = True,
     velocity: Any = None,
@@ -154,7 +154,8 @@ def diagnose(
         RMSD, mean RMSD over the counted noise floor, p-value and energy share
         of a residual pattern across experiments (defaults calibrated on null campaigns under every
         named noise process, see :mod:`granseg.diagnosis.selection`).
-    progress : log each step to stderr.
+    progress : log each step to stderr (True: every fit's evaluations too;
+        ``"stages"``: a counted line per stage only; False: nothing).
     accept_flagged : use maps that failed their frame-analysis quality checks
         (refused by default with :class:`granseg.errors.FlaggedMapError`).
     open_world : when the catalogue leaves a structured misfit, fit a smooth
@@ -181,17 +182,21 @@ def diagnose(
         candidates = []
     if calibration is None:
         calibration = calibrate(maps, n_cells=n_cells, rtol=rtol, atol=atol, max_nfev=max_nfev,
-                                progress=progress, accept_flagged=True)
+                                progress=progress is True, accept_flagged=True)
     _check_calibration(calibration, maps)
     data, base = calibration.data, calibration.fit
     assert data is not None and base is not None
-    data.log = log
+    data.log = log if progress != "stages" else (lambda msg: None)  # every fit evaluation, or not
     timing = {"baseline": time.perf_counter() - t_start}
     floor, noise = campaign_floor(maps)
     log(f"{data.n} experiments; noise floor {floor:.4f} (mean over experiments); baseline mean RMSD "
         f"{base.rmsd_mean:.4f}")
     ev = gather(data, base, [e.floor for e in noise])
-    fits = {c.name: fit(data, c, x0=base.values(), max_nfev=max_nfev) for c in candidates}
+    fits = {}
+    for i, c in enumerate(candidates, 1):
+        log(f"candidate {i}/{len(candidates)}: {c.name}")
+        fits[c.name] = fit(data, c, x0=base.values(), max_nfev=max_nfev)
+    log(f"scoring the baseline and {len(fits)} candidates on experiments they did not see")
     timing["candidates"] = time.perf_counter() - t_start - timing["baseline"]
     held, held_layers = {}, {}
     for name, f in {"baseline": base, **fits}.items():

@@ -189,7 +189,9 @@ def measure(maps: Sequence[Map], exps: Sequence[Any], fixed: dict[str, float] | 
         if w.sum() > 0:
             rows.append((m, e, rho, w / w.sum()))
     if not rows:
-        return Dwell(False, "no counts in the maps: the dwell of grains in view cannot be measured; "
+        why = ("no counts in the maps" if all(m.n is None for m in maps)
+               else f"no map with counts has more than {2 * MAX_LAG} frames")
+        return Dwell(False, f"{why}: the dwell of grains in view cannot be measured; "
                             "where grains stay in view, delta/H comes out about 1-2 % low")
     rho1 = float(np.mean([(w * r[:, 0]).sum() for _, _, r, w in rows]))
     if rho1 < MIN_CORRELATION:
