@@ -3,7 +3,9 @@
 Every writer in granseg goes through :func:`atomic_write` (or the helpers built
 on it). The data are written to a temporary file in the destination folder and
 moved into place with ``os.replace``, so a crash or a full disk leaves either
-the old file or the new one, never half of one.
+the old file or the new one, never half of one. The temporary file lives in a
+hidden ``.NAME.<random>.partial`` folder (:data:`PARTIAL_SUFFIX`), so one left
+by a killed process is never read as a map, frame or image.
 """
 
 from __future__ import annotations
@@ -11,6 +13,7 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+import shutil
 import tempfile
 from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
@@ -22,6 +25,7 @@ from granseg.errors import OutputExistsError
 
 __all__ = [
     "OutputExistsError",
+    "PARTIAL_SUFFIX",
     "atomic_write",
     "atomic_path",
     "check_writable",
@@ -71,29 +75,42 @@ def prepare_output_dir(out: str | os.PathLike, names: Sequence[str], force: bool
     return out
 
 
+#: Ending of the hidden folder an unfinished write lives in (``.NAME.<random>.partial/NAME``).
+#: No reader globs it: a write cut short (crash, kill, full disk) leaves that folder behind, never
+#: a file a map, frame or image reader could mistake for a finished one.
+PARTIAL_SUFFIX = ".partial"
+
+
 @contextlib.contextmanager
 def atomic_path(path: str | os.PathLike, force: bool = False, suffix: str = "") -> Iterator[Path]:
     """Yield a temporary path beside ``path``; on success move it into place.
 
-    ``suffix`` is the extension the temporary file needs for writers that
-    choose a format by name (e.g. ``.png``, ``.npz``).
+    The temporary file is ``.NAME.<random>.partial/NAME`` in the destination
+    folder: it keeps the destination's name and extension (writers that
+    choose a format by name, e.g. ``.png`` or ``.mp4``, see the right one),
+    sits on the same file system (so ``os.replace`` is atomic), and lives in
+    a hidden folder whose name no reader globs. ``suffix`` is appended when
+    the name does not already end in it (for a writer that needs another
+    extension than the destination's). The folder is removed afterwards,
+    whether the write succeeded or not.
     """
     dest = check_writable(path, force)
-    fd, tmp = tempfile.mkstemp(prefix=f".{dest.name}.", suffix=suffix or dest.suffix, dir=dest.parent)
-    os.close(fd)
-    tmp_path = Path(tmp)
+    tmp_dir = Path(tempfile.mkdtemp(prefix=f".{dest.name}.", suffix=PARTIAL_SUFFIX, dir=dest.parent))
+    tmp_path = tmp_dir / (dest.name if not suffix or dest.name.endswith(suffix) else dest.name + suffix)
     try:
+        tmp_path.touch()  # writers get an existing, empty file, as they did from mkstemp
         yield tmp_path
+        if not tmp_path.is_file():
+            raise OSError(f"{dest}: the writer left no file; nothing written")
         if not force and dest.exists():
             raise OutputExistsError(f"{dest}: appeared while writing; not overwritten")
-        # mkstemp creates 0600; give the file the permissions a plain open() would
+        # give the file the permissions a plain open() would (whatever the writer used)
         umask = os.umask(0)
         os.umask(umask)
         os.chmod(tmp_path, 0o666 & ~umask)
         os.replace(tmp_path, dest)
     finally:
-        if tmp_path.exists():
-            tmp_path.unlink()
+        shutil.rmtree(tmp_dir, ignore_errors=True)
 
 
 def atomic_write(path: str | os.PathLike, write: Callable[[Path], Any], force: bool = False) -> Path:
@@ -107,7 +124,7 @@ def save_npz(path: str | os.PathLike, arrays: dict[str, Any], force: bool = Fals
     """Write a NumPy ``.npz`` archive atomically."""
 
     def write(tmp: Path) -> None:
-        with open(tmp, "wb") as fh:
+        with open(tmp, "wb") as fh:  # a handle: np.savez would add ".npz" to a bare path lacking it
             np.savez(fh, **arrays)
 
     return atomic_write(path, write, force)

@@ -19,6 +19,7 @@ __all__ = [
     "OutputExistsError",
     "BadFrame",
     "QualityWarning",
+    "StaleFileWarning",
 ]
 
 
@@ -64,3 +65,9 @@ class BadFrame(GransegError, ValueError):
 
 class QualityWarning(UserWarning):
     """A map's quality record has a failed check (the map may be wrong)."""
+
+
+class StaleFileWarning(UserWarning):
+    """A reader skipped a hidden temporary file or folder (``.NAME.npz.<random>.partial``, or an
+    older ``.NAME.npz.<random>.npz``) that an interrupted write left behind; the warning names it
+    so it can be deleted."""

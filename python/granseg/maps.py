@@ -24,8 +24,12 @@ the calibration and the plots all use it.
 from __future__ import annotations
 
 import json
+import math
 import os
+import struct
 import warnings
+import zipfile
+import zlib
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -33,8 +37,8 @@ from typing import Any
 
 import numpy as np
 
-from granseg._io import save_npz
-from granseg.errors import FlaggedMapError, MapFormatError, QualityWarning
+from granseg._io import PARTIAL_SUFFIX, save_npz
+from granseg.errors import FlaggedMapError, MapFormatError, QualityWarning, StaleFileWarning
 
 __all__ = [
     "Map",
@@ -442,9 +446,16 @@ def _quality(source: str, value: Any) -> str:
 
 
 def _smoothing(source: str, value: Any) -> int:
+    """The moving-average width: an integer (a whole float such as 3.0 is taken as 3; 3.7 is
+    refused, never truncated)."""
     arr = np.asarray(value)
-    if arr.shape != () or arr.dtype.kind not in "iu":
+    if arr.shape != () or arr.dtype.kind not in "iuf":
         raise _fail(source, "smoothing_frames", f"expected an integer, got {value!r}")
+    if arr.dtype.kind == "f":
+        v = float(arr)
+        if not (np.isfinite(v) and v.is_integer()):
+            raise _fail(source, "smoothing_frames",
+                        f"expected a whole number of frames, got {v!r} (a window width is not rounded)")
     try:
         return _check_window(int(arr))
     except ValueError as exc:
@@ -492,25 +503,105 @@ def save_map(
     return save_npz(path, arrays, force=force)
 
 
+#: Largest array a map file may declare (per key), checked from the .npy header before anything
+#: is allocated: a real map is a few MB (frames x 15 layers of float64), so a header claiming more
+#: is a damaged or forged file, refused instead of ending in a MemoryError (or an OS swap storm).
+MAX_ARRAY_BYTES = 2 * 1024**3
+#: Largest sum of all arrays of one map file (same reason, for many moderately large keys).
+MAX_MAP_BYTES = 4 * 1024**3
+
+#: What reading a damaged archive can raise (zipfile, zlib, numpy's .npy reader, the OS); load_map
+#: turns each into a MapFormatError naming the file (and the key when one is being read).
+_ARCHIVE_ERRORS = (zipfile.BadZipFile, zlib.error, EOFError, ValueError, OSError, MemoryError,
+                   OverflowError, KeyError, RuntimeError, NotImplementedError, struct.error)
+
+
 def load_map(path: str | os.PathLike) -> Map:
     """Read and validate one map ``.npz`` (docs/formats.md); raise MapFormatError naming the field.
 
-    Unknown keys are kept in ``Map.extra`` and otherwise ignored.
+    Unknown keys are kept in ``Map.extra`` and otherwise ignored. A file that is not a readable
+    archive (truncated, not a zip, a damaged member, an array header declaring more than
+    :data:`MAX_ARRAY_BYTES`) is refused with a MapFormatError naming the file and, where one is
+    at fault, the key; FileNotFoundError names a missing file or a dangling symbolic link.
     """
     p = Path(path)
     if not p.is_file():
+        if p.is_symlink():
+            raise FileNotFoundError(f"{p}: map file not found: a symbolic link to {os.readlink(p)}, "
+                                    "which does not exist")
+        if p.is_dir():
+            raise MapFormatError(f"{p}: is a directory, not a map file (.npz)")
         raise FileNotFoundError(f"{p}: map file not found")
-    try:
-        with np.load(p, allow_pickle=False) as data:
-            raw = {k: data[k] for k in data.files}
-    except (OSError, ValueError, EOFError) as exc:
-        raise MapFormatError(f"{p}: not a readable .npz archive ({exc})") from None
+    raw = _read_npz(p)
     extra = {k: v for k, v in raw.items() if k not in REQUIRED and k not in OPTIONAL and k not in CELL_KEYS}
-    m = Map.from_arrays(raw, path=p, extra=extra)
+    try:
+        m = Map.from_arrays(raw, path=p, extra=extra)
+    except MapFormatError:
+        raise
+    except (ValueError, TypeError, OverflowError) as exc:  # e.g. a text field that is not UTF-8
+        raise MapFormatError(f"{p}: invalid map data ({type(exc).__name__}: {exc})") from None
     if m.failed_checks:
         warnings.warn(f"{p}: this map failed its frame-analysis quality checks: {', '.join(m.failed_checks)}",
                       QualityWarning, stacklevel=2)
     return m
+
+
+def _read_npz(p: Path) -> dict[str, np.ndarray]:
+    """Every array of the ``.npz`` at ``p`` by key; every header is checked before any array is
+    read, so a forged or damaged size is refused without allocating it."""
+    key = None
+    try:
+        with zipfile.ZipFile(p) as zf:
+            members = []
+            total = 0
+            for info in zf.infolist():
+                if info.is_dir():
+                    continue
+                key = info.filename[:-4] if info.filename.endswith(".npy") else info.filename
+                total += _declared_bytes(p, zf, info, key)
+                if total > MAX_MAP_BYTES:
+                    raise MapFormatError(f"{p}: its arrays declare {total / 2**30:.3g} GiB in all (up to key "
+                                         f"'{key}'), above the {MAX_MAP_BYTES / 2**30:g} GiB a map may hold; "
+                                         "the file is damaged or not a map")
+                members.append((key, info))
+            out = {}
+            for key, info in members:
+                with zf.open(info) as fh:
+                    out[key] = np.lib.format.read_array(fh, allow_pickle=False)
+            return out
+    except MapFormatError:
+        raise
+    except _ARCHIVE_ERRORS as exc:
+        where = "" if key is None else f" (at key '{key}')"
+        raise MapFormatError(f"{p}: not a readable .npz archive{where}: {type(exc).__name__}: {exc}; "
+                             "the file is truncated or damaged (rewrite it from its source)") from None
+
+
+def _declared_bytes(p: Path, zf: zipfile.ZipFile, info: zipfile.ZipInfo, key: str) -> int:
+    """Bytes the .npy header of member ``info`` declares, refused above MAX_ARRAY_BYTES or above
+    what the member holds (read from the header only; nothing of that size is allocated)."""
+    with zf.open(info) as fh:
+        version = np.lib.format.read_magic(fh)
+        if version == (1, 0):
+            shape, _, dtype = np.lib.format.read_array_header_1_0(fh)
+        elif version == (2, 0):
+            shape, _, dtype = np.lib.format.read_array_header_2_0(fh)
+        else:  # 3.0 (UTF-8 field names) has no public reader; numpy's own is used when present
+            read = getattr(np.lib.format, "_read_array_header", None)
+            if read is None:
+                raise MapFormatError(f"{p}: field '{key}': .npy format version {version} is not supported")
+            shape, _, dtype = read(fh, version)
+        header = fh.tell()
+    nbytes = math.prod(int(n) for n in shape) * dtype.itemsize  # Python ints: no overflow
+    if nbytes > MAX_ARRAY_BYTES:
+        raise MapFormatError(f"{p}: field '{key}': the array header declares shape {tuple(shape)} of {dtype} "
+                             f"({nbytes / 2**30:.3g} GiB), above the {MAX_ARRAY_BYTES / 2**30:g} GiB "
+                             "limit for one array; the file is damaged or not a map")
+    if not dtype.hasobject and header + nbytes > info.file_size:
+        raise MapFormatError(f"{p}: field '{key}': the array header declares shape {tuple(shape)} of {dtype} "
+                             f"({nbytes} bytes) but the archive holds {info.file_size - header}; "
+                             "the file is truncated or damaged")
+    return nbytes
 
 
 def views_of(m: Map) -> dict[str, Map]:
@@ -550,14 +641,34 @@ def check_accepted(maps: Iterator[Map] | list[Map], accept_flagged: bool) -> Non
 def load_campaign(directory: str | os.PathLike) -> Campaign:
     """Load every ``*.npz`` map in ``directory``, sorted by experiment name.
 
-    Raises FileNotFoundError for a missing directory and MapFormatError for a
-    directory with no maps, a bad map (naming its file and field), maps with
-    different layer counts, or two maps with the same experiment name.
+    Hidden entries (names starting with ".") are not maps and are skipped; one that looks like a
+    temporary file of an interrupted write (``.NAME.npz.<random>.partial``, or an older
+    ``.NAME.npz.<random>.npz``) is named in a :class:`~granseg.errors.StaleFileWarning`.
+
+    Raises FileNotFoundError for a missing directory or a ``*.npz`` that is a dangling symbolic
+    link, and MapFormatError for a directory with no maps, a ``*.npz`` entry that is not a file,
+    a bad map (naming its file and field), maps with different layer counts, or two maps with
+    the same experiment name: no experiment is ever dropped silently.
     """
     d = Path(directory)
     if not d.is_dir():
         raise FileNotFoundError(f"{d}: campaign directory not found")
-    files = sorted(f for f in d.glob("*.npz") if f.is_file())
+    files = []
+    for f in sorted(d.iterdir()):
+        if f.name.startswith("."):
+            if f.name.endswith((".npz", PARTIAL_SUFFIX)):
+                warnings.warn(f"{f}: skipped, a hidden temporary file of an interrupted (or still running) "
+                              "write, not a map; delete it once no granseg command is writing here",
+                              StaleFileWarning, stacklevel=2)
+            continue
+        if not f.name.endswith(".npz"):
+            continue
+        if not f.is_file():
+            if f.is_symlink():
+                raise FileNotFoundError(f"{f}: map file not found: a symbolic link to {os.readlink(f)}, which "
+                                        "does not exist (restore its target or remove the link)")
+            raise MapFormatError(f"{f}: is not a file; a map must be an .npz file (rename or move it)")
+        files.append(f)
     if not files:
         raise MapFormatError(f"{d}: campaign has no map files (*.npz)")
     maps = [load_map(f) for f in files]
