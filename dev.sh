@@ -64,7 +64,9 @@ case "$cmd" in
     bench)
         setup
         shift
-        cargo bench --bench solver -- --noplot
+        # the release profile (not cargo's separate `bench` one): the crate and its
+        # dependencies built for the demo and the tests are reused, not rebuilt
+        cargo bench --profile release --bench solver -- --noplot
         python benches/compare_scipy.py
         ;;
     *)
