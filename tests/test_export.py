@@ -126,7 +126,7 @@ def test_map_round_trip_csv_and_mat(tmp_path: Path) -> None:
 
 
 def test_fixture_map_from_path(tmp_path: Path) -> None:
-    src = FIXTURES / "dem-r2-F300.npz"
+    src = FIXTURES / "dem-r2-F150.npz"
     m = load_map(src)
     export_map(src, tmp_path)
     assert_map_csv(m, tmp_path)

@@ -1,6 +1,6 @@
 """Run a small DEM campaign with the example bed and turn it into granseg campaigns.
 
-    python examples/dem/campaign.py OUT [--ratios 1.5 2 3 4] [--loads 300 1200] [--steps 1200000]
+    python examples/dem/campaign.py OUT [--ratios 1.5 2 3 4] [--loads 150 600] [--steps 1200000]
 
 Every (density ratio, lid load) pair is one LAMMPS run of ``shear_cell.in`` (``lmp`` from
 Debian's ``lammps`` package), as many at once as the machine has cores, each logged when it
@@ -12,9 +12,11 @@ ends. Then every run is read back (:mod:`granseg.dem`) into
     OUT/costs.json                   each run's grains, steps, wall time and steps/s
 
 A run already finished in OUT/runs is not run again, so an interrupted campaign resumes.
-Defaults: a bed 11 grains high between the plate and the lid, 12 x 6 grains across, the
-plate at 2 (lj speed units, 0.49 m/s), 1.2 million sheared steps (8.9 s of the
-experiment's time).
+Defaults: a bed 11 grains high between the plate and the lid, 15 x 12 grains across (about
+2,260 grains), c0 = 0.47, the plate at 4 (lj speed units, 0.97 m/s), lid forces 150 and 600
+(46 and 186 Pa), 1.2 million sheared steps (8.9 s of the experiment's time). A gap of 12
+grains between the side walls lets the whole bed shear; at 6 grains the walls' friction holds
+its upper half still and the bed barely un-mixes.
 """
 
 from __future__ import annotations
@@ -37,14 +39,14 @@ def _args(argv: list[str] | None) -> argparse.Namespace:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("out", type=Path, help="campaign folder (runs/, campaign/, costs.json)")
     p.add_argument("--ratios", type=float, nargs="+", default=[1.5, 2.0, 3.0, 4.0], help="heavy / light densities")
-    p.add_argument("--loads", type=float, nargs="+", default=[300.0, 1200.0],
+    p.add_argument("--loads", type=float, nargs="+", default=[150.0, 600.0],
                    help="total lid force, lj units (1 = 2.0e-3 N)")
-    p.add_argument("--c0", type=float, default=0.5, help="heavy share of the bed (heavy on top at the start)")
+    p.add_argument("--c0", type=float, default=0.47, help="heavy share of the bed (heavy on top at the start)")
     p.add_argument("--steps", type=int, default=1_200_000, help="sheared steps per run")
     p.add_argument("--dump-every", type=int, default=20_000, help="steps between snapshots")
-    p.add_argument("--size", type=float, nargs=3, default=[12, 6, 11], metavar=("LX", "LY", "LAYERS"),
+    p.add_argument("--size", type=float, nargs=3, default=[15, 12, 11], metavar=("LX", "LY", "LAYERS"),
                    help="box length along the flow, gap between the side walls, bed layers (grain diameters)")
-    p.add_argument("--U", type=float, default=2.0, help="plate speed, lj units (1 = 0.243 m/s)")
+    p.add_argument("--U", type=float, default=4.0, help="plate speed, lj units (1 = 0.243 m/s)")
     p.add_argument("--seed", type=int, default=1)
     p.add_argument("--jobs", type=int, default=os.cpu_count() or 1, help="runs at once (default: all cores)")
     return p.parse_args(argv)
