@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 
 from granseg.calibration import CalibrationWarning
-from granseg.errors import QualityWarning
 from granseg.diagnosis import diagnose
+from granseg.errors import QualityWarning
 from granseg.maps import load_campaign
 from granseg.velocity import load_velocity
 
