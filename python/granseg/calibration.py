@@ -239,9 +239,16 @@ def as_maps(campaign: Campaign | Sequence[Map] | str | os.PathLike) -> list[Map]
     """The maps of a campaign directory, Campaign or list, with distinct names (ValueError otherwise)."""
     if isinstance(campaign, str | os.PathLike):
         return list(load_campaign(Path(campaign)))
-    maps = list(campaign)
+    try:
+        maps = list(campaign)
+    except TypeError:
+        raise ValueError(f"campaign: expected a campaign folder, a Campaign or a list of maps, "
+                         f"got {type(campaign).__name__}") from None
     if not maps:
         raise ValueError("campaign: it has no maps")
+    for i, m in enumerate(maps):
+        if not isinstance(m, Map):
+            raise ValueError(f"campaign[{i}]: expected a granseg Map (granseg.load_map), got {type(m).__name__}")
     names = [m.name for m in maps]
     if len(set(names)) != len(names):
         raise ValueError(f"campaign: duplicate experiment names in {names}")

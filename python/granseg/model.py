@@ -304,10 +304,27 @@ def _measured_entry(m: Any, i: int) -> tuple[np.ndarray, np.ndarray, int]:
         raise ValueError(f"measured[{i}].c must have shape (n_t, n_layers) = ({t.size}, n_layers), got {c.shape}")
     if c.shape[1] < 1 or not np.any(np.isfinite(c)):
         raise ValueError(f"measured[{i}].c has no finite entry")
-    s = 1 if s is None else int(s)
-    if s < 1 or s % 2 == 0:
-        raise ValueError(f"measured[{i}].smoothing_frames = {s} must be an odd number >= 1 (a centred window)")
+    # NaN marks a missing reading (docs/formats.md); anything else must be a share
+    bad = ~np.isnan(c) & ~((c >= 0) & (c <= 1))
+    if bad.any():
+        j = tuple(int(v) for v in np.argwhere(bad)[0])
+        raise ValueError(f"measured[{i}].c[{j[0]}, {j[1]}] = {float(c[j])!r} is not a share in [0, 1] (NaN = no reading)")
+    s = _odd_window(1 if s is None else s, f"measured[{i}].smoothing_frames")
     return c, t, s
+
+
+def _odd_window(s: Any, where: str) -> int:
+    """A smoothing window [frames]: an odd integer >= 1 (3.0 is 3; 3.7 is refused, not truncated)."""
+    try:
+        v = float(s)
+    except (TypeError, ValueError):
+        raise ValueError(f"{where} = {s!r} is not a number of frames") from None
+    if isinstance(s, bool) or not np.isfinite(v) or v != int(v):
+        raise ValueError(f"{where} = {s!r} must be a whole number of frames")
+    s = int(v)
+    if s < 1 or s % 2 == 0:
+        raise ValueError(f"{where} = {s} must be an odd number >= 1 (a centred window)")
+    return s
 
 
 def _run_chunk(payload: dict[str, Any]) -> tuple[list[np.ndarray], np.ndarray, list[dict[str, float]]]:
