@@ -28,16 +28,16 @@ from matplotlib.patches import Rectangle
 from matplotlib.text import Text
 
 from granseg import plot
-from granseg.fit import fit_campaign, tanh_curve
+from granseg.fit import fit_campaign
 from granseg.maps import Map
 from granseg.plot.base import style
+from test_plot_report import fake_map  # the same segregating maps the report tests draw
 
 MAX_WIDTH_IN = 7.2
 MIN_FONT_PT = 6.0
 TOL_PX = 2.0  # boxes may touch: an overlap counts when it is wider and taller than this
 
 H = 0.09
-Z = (np.arange(15) + 0.5) * 6e-3
 
 
 # --------------------------------------------------------------------------- the checks
@@ -177,19 +177,6 @@ def test_the_checks_catch_an_empty_and_an_overlapping_panel():
 
 
 # --------------------------------------------------------------------------- cheap inputs
-
-
-def fake_map(name: str, rho_h: float, seed: int, c0: float = 0.5, heavy: str = "h") -> Map:
-    rng = np.random.default_rng(seed)
-    t = np.arange(0.0, 1200.0, 4.0)
-    dR = rho_h / 946.0
-    A = 1 - 0.5 / dR**2.3
-    tau = 1500.0 * np.exp(-0.8 * (dR - 1))
-    f = tanh_curve(t, A, 0.6 * tau, tau)[:, None] * np.exp(-Z / 0.03)[None, :]
-    start = (Z > (1 - c0) * H).astype(float)[None, :]
-    c = np.clip(start * (1 - f) + f + rng.normal(0, 0.04, (t.size, 15)), 0, 1)
-    return Map(c=c, t=t, z=Z, name=name, heavy=heavy, light="PP", rho_h=rho_h, rho_l=946.0,
-               c0=c0, M_g=2.0, M_w=1.093)
 
 
 @pytest.fixture(scope="module")

@@ -20,7 +20,7 @@ H = 0.09
 Z = (np.arange(15) + 0.5) * 6e-3
 
 
-def fake_map(name: str, rho_h: float, seed: int, c0: float = 0.5) -> Map:
+def fake_map(name: str, rho_h: float, seed: int, c0: float = 0.5, heavy: str = "h") -> Map:
     """A segregating map with noise; shape and values like a real experiment."""
     rng = np.random.default_rng(seed)
     t = np.arange(0.0, 1200.0, 4.0)
@@ -30,7 +30,7 @@ def fake_map(name: str, rho_h: float, seed: int, c0: float = 0.5) -> Map:
     f = tanh_curve(t, A, 0.6 * tau, tau)[:, None] * np.exp(-Z / 0.03)[None, :]
     start = (Z > (1 - c0) * H).astype(float)[None, :]
     c = np.clip(start * (1 - f) + f + rng.normal(0, 0.04, (t.size, 15)), 0, 1)
-    return Map(c=c, t=t, z=Z, name=name, heavy="h", light="PP", rho_h=rho_h, rho_l=946.0,
+    return Map(c=c, t=t, z=Z, name=name, heavy=heavy, light="PP", rho_h=rho_h, rho_l=946.0,
                c0=c0, M_g=2.0, M_w=1.093)
 
 

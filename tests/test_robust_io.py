@@ -18,19 +18,8 @@ import pytest
 from granseg._io import PARTIAL_SUFFIX, atomic_path, atomic_write, save_npz
 from granseg.errors import MapFormatError, StaleFileWarning
 from granseg.maps import MAX_ARRAY_BYTES, Map, load_campaign, load_map, save_map
+from test_maps import fields  # one valid map's DATA fields, as the map tests build them
 
-D_P = 6e-3
-
-
-def fields(name: str = "G-PP-50", n_t: int = 12, n_layers: int = 15, seed: int = 0) -> dict:
-    rng = np.random.default_rng(seed)
-    return dict(
-        c=rng.uniform(0, 1, (n_t, n_layers)),
-        t=np.arange(n_t) * 2.0,
-        z=(np.arange(n_layers) + 0.5) * D_P,
-        name=name, heavy="glass", light="PP",
-        rho_h=2450.0, rho_l=946.0, c0=0.5, M_g=2.04, M_w=1.093,
-    )
 
 
 @pytest.fixture

@@ -130,6 +130,18 @@ def save_npz(path: str | os.PathLike, arrays: dict[str, Any], force: bool = Fals
     return atomic_write(path, write, force)
 
 
+def read_json(path: str | os.PathLike, what: str, hint: str = "") -> Any:
+    """The JSON document at ``path``; FileNotFoundError / ValueError name the file and ``what``
+    it should hold (e.g. "experiment.json"), with ``hint`` on where one comes from."""
+    p = Path(path)
+    if not p.is_file():
+        raise FileNotFoundError(f"{p}: {what} not found" + (f" ({hint})" if hint else ""))
+    try:
+        return json.loads(p.read_text(encoding="utf-8"))
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise ValueError(f"{p}: not valid JSON ({exc})") from None
+
+
 def save_json(path: str | os.PathLike, obj: Any, force: bool = False) -> Path:
     """Write JSON atomically (NaN written as null, numpy scalars as numbers)."""
 

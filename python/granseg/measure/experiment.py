@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 import math
 import os
 from dataclasses import dataclass, field
@@ -11,6 +10,7 @@ from typing import Any
 
 import numpy as np
 
+from granseg._io import read_json
 from granseg.maps import Conditions
 
 __all__ = ["Experiment", "load_experiment"]
@@ -49,12 +49,8 @@ class Experiment(Conditions):
 def load_experiment(path: str | os.PathLike) -> Experiment:
     """Read ``experiment.json`` at ``path``; ValueError names the file and the bad field."""
     p = Path(path)
-    if not p.is_file():
-        raise FileNotFoundError(f"{p}: experiment.json not found (it must sit beside the frames or video)")
-    try:
-        raw = json.loads(p.read_text(encoding="utf-8"))
-    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise ValueError(f"{p}: not valid JSON ({exc})") from None
+    raw = read_json(p, "experiment.json", "it must sit beside the frames or video; granseg init-experiment "
+                                          "writes one")
     if not isinstance(raw, dict):
         raise ValueError(f"{p}: expected a JSON object with the experiment's fields")
     return _parse(p, raw)

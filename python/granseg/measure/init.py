@@ -24,7 +24,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from granseg._io import atomic_write, check_writable
+from granseg._io import atomic_write, check_writable, read_json
 from granseg.constants import N_LAYERS
 from granseg.measure.camera import Undistorter
 from granseg.measure.sources import FrameDirectory, VideoFrames, open_frames
@@ -174,13 +174,7 @@ def _camera(camera: Any, size: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]
         return np.array([[f, 0.0, (w - 1) / 2], [0.0, f, (h - 1) / 2], [0.0, 0.0, 1.0]]), np.zeros(5)
     src = str(camera) if not isinstance(camera, Mapping) else "camera"
     if not isinstance(camera, Mapping):
-        p = Path(camera)
-        if not p.is_file():
-            raise FileNotFoundError(f"{p}: camera JSON not found (granseg calibrate-camera writes it)")
-        try:
-            camera = json.loads(p.read_text(encoding="utf-8"))
-        except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-            raise ValueError(f"{p}: not valid JSON ({exc})") from None
+        camera = read_json(camera, "camera JSON", "granseg calibrate-camera writes it")
     try:
         k = np.asarray(camera["camera_matrix"], dtype=float)
         dist = np.asarray(camera["dist_coeffs"], dtype=float).ravel()
