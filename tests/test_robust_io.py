@@ -21,7 +21,6 @@ from granseg.maps import MAX_ARRAY_BYTES, Map, load_campaign, load_map, save_map
 from test_maps import fields  # one valid map's DATA fields, as the map tests build them
 
 
-
 @pytest.fixture
 def campaign(tmp_path):
     """A folder with two valid maps, G-PP-50.npz and G-PP-30.npz."""
