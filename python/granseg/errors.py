@@ -20,6 +20,7 @@ __all__ = [
     "BadFrame",
     "QualityWarning",
     "StaleFileWarning",
+    "CameraWarning",
 ]
 
 
@@ -71,3 +72,7 @@ class StaleFileWarning(UserWarning):
     """A reader skipped a hidden temporary file or folder (``.NAME.npz.<random>.partial``, or an
     older ``.NAME.npz.<random>.npz``) that an interrupted write left behind; the warning names it
     so it can be deleted."""
+
+
+class CameraWarning(UserWarning):
+    """A camera calibration was made but is poorly constrained (the warning gives the figures)."""
