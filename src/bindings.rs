@@ -2,17 +2,32 @@
 //! numerics here. Bad input becomes ValueError, a numerical failure
 //! `_core.SolverError` (re-raised as granseg.SolverError by the package), and
 //! any Rust panic is caught and turned into an exception rather than
-//! aborting the interpreter.
+//! aborting the interpreter. Sizes are checked by the core before anything is
+//! allocated (`limits.rs`), and an allocation that still fails is a
+//! MemoryError, not an abort.
+//!
+//! Ctrl-C: a long call (simulate, steady_state, sweep) runs on a worker
+//! thread with the GIL released, while the calling thread waits for it in
+//! slices of `SIGNAL_POLL` and, between slices, briefly takes the GIL to run
+//! Python's signal handlers (`Python::check_signals`). When a handler raises
+//! (KeyboardInterrupt on Ctrl-C), the core's stop flag is set, the worker
+//! returns `SolveError::Interrupted` at its next poll (every step attempt,
+//! every 256 cells of a steady-state pass, every run of a sweep), and the
+//! handler's exception is raised. Signal handlers only run on Python's main
+//! thread, so a call from another thread is not interrupted (as in numpy).
 
 use std::collections::HashMap;
 use std::panic::{catch_unwind, AssertUnwindSafe};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::mpsc;
 use std::sync::Arc;
+use std::time::Duration;
 
 use numpy::ndarray::Array2;
 use numpy::{
     IntoPyArray, PyArray1, PyArray2, PyReadonlyArray1, PyReadonlyArray2, PyUntypedArrayMethods,
 };
-use pyo3::exceptions::{PyRuntimeError, PyValueError};
+use pyo3::exceptions::{PyKeyboardInterrupt, PyMemoryError, PyRuntimeError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
@@ -20,7 +35,7 @@ use crate::error::SolveError;
 use crate::params::{Params, FIELDS, MATERIALS};
 use crate::stepper::{Stats, Tolerances};
 use crate::sweep::{Measured, RunSpec};
-use crate::{layers, model, steady, stepper};
+use crate::{layers, limits, model, steady, stepper};
 
 pyo3::create_exception!(
     _core,
@@ -30,25 +45,63 @@ pyo3::create_exception!(
 );
 
 fn to_py_err(e: SolveError) -> PyErr {
-    if e.is_input_error() {
-        PyValueError::new_err(e.to_string())
-    } else {
-        SolverError::new_err(e.to_string())
+    match e {
+        SolveError::Interrupted => PyKeyboardInterrupt::new_err("interrupted"),
+        SolveError::OutOfMemory(_) => PyMemoryError::new_err(e.to_string()),
+        _ if e.is_input_error() => PyValueError::new_err(e.to_string()),
+        _ => SolverError::new_err(e.to_string()),
     }
 }
 
-/// Run `f` without the GIL, turning a panic into a Python exception.
+/// How often a waiting call takes the GIL to run Python's signal handlers.
+const SIGNAL_POLL: Duration = Duration::from_millis(100);
+
+fn panic_error() -> PyErr {
+    SolverError::new_err("internal error in the numerical core (a Rust panic was caught)")
+}
+
+/// Run `f(stop)` on a worker thread without the GIL, turning a panic into a
+/// Python exception; Ctrl-C (any exception a signal handler raises) sets
+/// `stop` and is raised once the worker has returned (module docs).
 fn detached<T: Send>(
     py: Python<'_>,
-    f: impl FnOnce() -> Result<T, SolveError> + Send,
+    f: impl FnOnce(&AtomicBool) -> Result<T, SolveError> + Send,
 ) -> PyResult<T> {
-    let out = py.detach(move || catch_unwind(AssertUnwindSafe(f)));
-    match out {
-        Ok(r) => r.map_err(to_py_err),
-        Err(_) => Err(SolverError::new_err(
-            "internal error in the numerical core (a Rust panic was caught)",
-        )),
-    }
+    let stop = AtomicBool::new(false);
+    std::thread::scope(|scope| {
+        let (tx, mut rx) = mpsc::channel::<()>();
+        let stop_ref = &stop;
+        let worker = scope.spawn(move || {
+            let out = catch_unwind(AssertUnwindSafe(|| f(stop_ref)));
+            let _ = tx.send(()); // the receiver may be gone: nothing to tell
+            out
+        });
+        let mut pending: Option<PyErr> = None;
+        loop {
+            let (back, waited) = py.detach(move || {
+                let r = rx.recv_timeout(SIGNAL_POLL);
+                (rx, r)
+            });
+            rx = back;
+            if !matches!(waited, Err(mpsc::RecvTimeoutError::Timeout)) {
+                break; // finished (or the worker is gone)
+            }
+            if pending.is_none() {
+                if let Err(e) = py.check_signals() {
+                    stop.store(true, Ordering::Relaxed);
+                    pending = Some(e);
+                }
+            }
+        }
+        let out = py.detach(move || worker.join());
+        if let Some(e) = pending {
+            return Err(e);
+        }
+        match out {
+            Ok(Ok(r)) => r.map_err(to_py_err),
+            Ok(Err(_)) | Err(_) => Err(panic_error()),
+        }
+    })
 }
 
 fn params_from(map: &HashMap<String, f64>) -> Result<Params, SolveError> {
@@ -131,6 +184,17 @@ fn velocity_profile<'py>(
     let p = params_from(&params).map_err(to_py_err)?;
     let delta = p.delta_at(t);
     let z = z.as_array();
+    let slack = 1e-9 * p.h;
+    if let Some((i, zz)) = z
+        .iter()
+        .enumerate()
+        .find(|(_, &zz)| !(zz >= -slack && zz <= p.h + slack))
+    {
+        return Err(PyValueError::new_err(format!(
+            "z must lie in [0, H] = [0, {}] m (the bed): z[{i}] = {zz}",
+            p.h
+        )));
+    }
     let v: Vec<f64> = z.iter().map(|&zz| model::velocity(&p, delta, zz)).collect();
     // the shear rate the fluxes use: the exponential's times the shear-profile law's factor
     let g: Vec<f64> = z
@@ -155,11 +219,15 @@ fn simulate<'py>(
     Bound<'py, PyArray2<f64>>,
     Bound<'py, PyDict>,
 )> {
-    let t: Vec<f64> = t.as_array().to_vec();
     let p = params_from(&params).map_err(to_py_err)?;
     let n_t = t.len();
-    let (c, stats) = detached(py, move || {
-        stepper::simulate(&p, n_cells, &t, tolerances(rtol, atol))
+    // sizes before anything is allocated, the copy of t included
+    limits::check_buffer("the output c", &[("len(t)", n_t), ("n_cells", n_cells)])
+        .map_err(to_py_err)?;
+    limits::check_output_times("t", n_t).map_err(to_py_err)?;
+    let t: Vec<f64> = t.as_array().to_vec();
+    let (c, stats) = detached(py, move |stop| {
+        stepper::simulate_stoppable(&p, n_cells, &t, tolerances(rtol, atol), stop)
     })?;
     let z = model::Grid::new(n_cells, p.h).centres();
     let c = Array2::from_shape_vec((n_t, n_cells), c)
@@ -181,7 +249,9 @@ fn steady_state<'py>(
     sub_steps: usize,
 ) -> PyResult<(Bound<'py, PyArray1<f64>>, Bound<'py, PyArray1<f64>>)> {
     let p = params_from(&params).map_err(to_py_err)?;
-    let c = detached(py, move || steady::steady_state(&p, n_cells, sub_steps))?;
+    let c = detached(py, move |stop| {
+        steady::steady_state_stoppable(&p, n_cells, sub_steps, stop)
+    })?;
     let z = model::Grid::new(n_cells, p.h).centres();
     Ok((z.into_pyarray(py), c.into_pyarray(py)))
 }
@@ -201,6 +271,14 @@ fn layer_means<'py>(
             "n_layers and the number of cells must be >= 1",
         ));
     }
+    if n_layers > limits::MAX_CELLS {
+        return Err(PyValueError::new_err(format!(
+            "n_layers = {n_layers} is out of range: must be <= {}",
+            limits::MAX_CELLS
+        )));
+    }
+    limits::check_buffer("the layer means", &[("n_t", n_t), ("n_layers", n_layers)])
+        .map_err(to_py_err)?;
     let lm = layers::LayerMap::new(n_cells, n_layers);
     let view = c.as_array();
     let mut out = Array2::<f64>::zeros((n_t, n_layers));
@@ -288,13 +366,8 @@ fn sweep<'py>(
             n_layers: n_layers[i],
         });
     }
-    let results = detached(py, move || {
-        Ok(crate::sweep::sweep(
-            &specs,
-            n_cells,
-            tolerances(rtol, atol),
-            threads,
-        ))
+    let results = detached(py, move |stop| {
+        crate::sweep::sweep_stoppable(&specs, n_cells, tolerances(rtol, atol), threads, stop)
     })?;
     let mut layers_out = Vec::with_capacity(n);
     let mut rmsd = Vec::with_capacity(n);
@@ -327,9 +400,23 @@ fn prefix(i: usize, e: SolveError) -> SolveError {
 /// Python as an exception instead of aborting the interpreter.
 #[pyfunction]
 fn _panic_for_testing(py: Python<'_>) -> PyResult<()> {
-    detached(py, || -> Result<(), SolveError> {
+    detached(py, |_| -> Result<(), SolveError> {
         panic!("deliberate panic for the test suite")
     })
+}
+
+/// The ceilings of one call (`limits.rs`): max_bytes (of the outputs),
+/// max_cells, max_output_times, max_sub_steps, max_threads.
+#[pyfunction]
+#[pyo3(name = "limits")]
+fn call_limits() -> HashMap<String, usize> {
+    HashMap::from([
+        ("max_bytes".to_string(), limits::MAX_BYTES),
+        ("max_cells".to_string(), limits::MAX_CELLS),
+        ("max_output_times".to_string(), limits::MAX_OUTPUT_TIMES),
+        ("max_sub_steps".to_string(), limits::MAX_SUB_STEPS),
+        ("max_threads".to_string(), limits::MAX_THREADS),
+    ])
 }
 
 /// granseg's compiled core.
@@ -337,8 +424,8 @@ fn _panic_for_testing(py: Python<'_>) -> PyResult<()> {
 mod _core {
     #[pymodule_export]
     use super::{
-        _panic_for_testing, default_tolerances, defaults, derived, law_keys, layer_means,
-        materials, moving_average, simulate, steady_state, sweep, validate, velocity_profile,
-        SolverError,
+        _panic_for_testing, call_limits, default_tolerances, defaults, derived, law_keys,
+        layer_means, materials, moving_average, simulate, steady_state, sweep, validate,
+        velocity_profile, SolverError,
     };
 }

@@ -19,6 +19,10 @@ pub enum SolveError {
     NewtonFailure { t: f64, reason: String },
     /// The steady-state shooting did not converge.
     SteadyFailure(String),
+    /// The caller's stop flag was set (Ctrl-C in Python): the work was abandoned.
+    Interrupted,
+    /// An allocation within the size limits (`limits.rs`) was refused.
+    OutOfMemory(String),
 }
 
 impl fmt::Display for SolveError {
@@ -36,6 +40,8 @@ impl fmt::Display for SolveError {
                 write!(f, "time stepper failed at t = {t} s: {reason}")
             }
             SolveError::SteadyFailure(msg) => write!(f, "steady-state solve failed: {msg}"),
+            SolveError::Interrupted => write!(f, "interrupted"),
+            SolveError::OutOfMemory(msg) => write!(f, "out of memory: {msg}"),
         }
     }
 }

@@ -9,6 +9,7 @@ pub mod error;
 pub mod flux;
 pub mod laws;
 pub mod layers;
+pub mod limits;
 pub mod model;
 pub mod params;
 #[cfg(feature = "pressure-coupled")]

@@ -10,7 +10,10 @@
 //! found by bracketed root finding so that the depth-mean of c is c0. The
 //! logit keeps the profile strictly inside (0, 1) at any density ratio.
 
+use std::sync::atomic::AtomicBool;
+
 use crate::error::SolveError;
+use crate::limits;
 use crate::model::{self, Grid};
 use crate::params::Params;
 
@@ -44,14 +47,18 @@ impl Shooter<'_> {
         (-self.lambda0 / (mu * pres), -self.p.g * self.p.phi_s * rho)
     }
 
-    /// Cell averages of c (Simpson per cell) for the trial top logit.
-    fn profile(&self, u_top: f64, out: &mut [f64]) {
+    /// Cell averages of c (Simpson per cell) for the trial top logit;
+    /// `Interrupted` if `stop` is set (polled every 256 cells).
+    fn profile(&self, u_top: f64, out: &mut [f64], stop: &AtomicBool) -> Result<(), SolveError> {
         let n = self.grid.n;
         let m = self.sub; // even number of RK4 sub-steps per cell
         let hz = -self.grid.dz / m as f64;
         let (mut u, mut pres) = (u_top, self.p.p_load());
         let mut z = self.p.h;
         for cell in (0..n).rev() {
+            if cell % 256 == 0 {
+                limits::check_stop(stop)?;
+            }
             let mut acc = logistic(u);
             for s in 0..m {
                 let (k1u, k1p) = self.deriv(z, u, pres);
@@ -74,18 +81,35 @@ impl Shooter<'_> {
             }
             out[cell] = acc / (3.0 * m as f64);
         }
+        Ok(())
     }
 
-    fn excess_mass(&self, u_top: f64, buf: &mut [f64]) -> f64 {
-        self.profile(u_top, buf);
-        buf.iter().sum::<f64>() / buf.len() as f64 - self.p.c0
+    fn excess_mass(
+        &self,
+        u_top: f64,
+        buf: &mut [f64],
+        stop: &AtomicBool,
+    ) -> Result<f64, SolveError> {
+        self.profile(u_top, buf, stop)?;
+        Ok(buf.iter().sum::<f64>() / buf.len() as f64 - self.p.c0)
     }
 }
 
 /// Steady profile as cell averages on `n_cells` cells (centres from
 /// `Grid::centres`). `sub_steps` RK4 steps per cell (rounded up to even);
 /// the result is converged to ~1e-10 for sub_steps >= 16 at 180 cells.
+/// At most `limits::MAX_CELLS` cells and `limits::MAX_SUB_STEPS` sub-steps.
 pub fn steady_state(p: &Params, n_cells: usize, sub_steps: usize) -> Result<Vec<f64>, SolveError> {
+    steady_state_stoppable(p, n_cells, sub_steps, limits::never())
+}
+
+/// `steady_state` that returns `SolveError::Interrupted` soon after `stop` is set.
+pub fn steady_state_stoppable(
+    p: &Params,
+    n_cells: usize,
+    sub_steps: usize,
+    stop: &AtomicBool,
+) -> Result<Vec<f64>, SolveError> {
     if p.laws.active() {
         return Err(SolveError::InvalidInput(
             "steady_state: the law corrections (law_*) are not supported; simulate to long times instead".into(),
@@ -97,6 +121,13 @@ pub fn steady_state(p: &Params, n_cells: usize, sub_steps: usize) -> Result<Vec<
             "n_cells = {n_cells} is out of range: must be >= 15"
         )));
     }
+    limits::check_cells(n_cells)?;
+    if sub_steps > limits::MAX_SUB_STEPS {
+        return Err(SolveError::InvalidInput(format!(
+            "sub_steps = {sub_steps} is out of range: must be <= {}",
+            limits::MAX_SUB_STEPS
+        )));
+    }
     let sub = (sub_steps.max(2) + 1) / 2 * 2;
     let shooter = Shooter {
         p,
@@ -105,10 +136,10 @@ pub fn steady_state(p: &Params, n_cells: usize, sub_steps: usize) -> Result<Vec<
         grid: Grid::new(n_cells, p.h),
         sub,
     };
-    let mut buf = vec![0.0; n_cells];
+    let mut buf = limits::zeroed(n_cells, "the steady profile")?;
     let (mut lo, mut hi) = (-40.0, 40.0);
-    let mut f_lo = shooter.excess_mass(lo, &mut buf);
-    let mut f_hi = shooter.excess_mass(hi, &mut buf);
+    let mut f_lo = shooter.excess_mass(lo, &mut buf, stop)?;
+    let mut f_hi = shooter.excess_mass(hi, &mut buf, stop)?;
     let mut tries = 0;
     while f_lo > 0.0 || f_hi < 0.0 {
         tries += 1;
@@ -119,11 +150,11 @@ pub fn steady_state(p: &Params, n_cells: usize, sub_steps: usize) -> Result<Vec<
         }
         if f_lo > 0.0 {
             lo = 2.0 * lo - 10.0;
-            f_lo = shooter.excess_mass(lo, &mut buf);
+            f_lo = shooter.excess_mass(lo, &mut buf, stop)?;
         }
         if f_hi < 0.0 {
             hi = 2.0 * hi + 10.0;
-            f_hi = shooter.excess_mass(hi, &mut buf);
+            f_hi = shooter.excess_mass(hi, &mut buf, stop)?;
         }
     }
     // Illinois regula falsi with a bisection safeguard.
@@ -133,7 +164,7 @@ pub fn steady_state(p: &Params, n_cells: usize, sub_steps: usize) -> Result<Vec<
         if !mid.is_finite() || mid <= lo || mid >= hi {
             mid = 0.5 * (lo + hi);
         }
-        let f_mid = shooter.excess_mass(mid, &mut buf);
+        let f_mid = shooter.excess_mass(mid, &mut buf, stop)?;
         if f_mid.abs() < 1e-14 || (hi - lo) < 1e-13 {
             return Ok(buf);
         }
@@ -187,6 +218,21 @@ mod tests {
             assert!((mean - c0).abs() < 1e-12);
             assert!(c.windows(2).all(|w| w[1] <= w[0]));
         }
+    }
+
+    #[test]
+    fn sizes_are_bounded_and_a_stop_flag_interrupts() {
+        let p = Params::default();
+        let e = steady_state(&p, 100_000_000, 16).unwrap_err();
+        assert!(
+            e.is_input_error() && e.to_string().contains("n_cells = 100000000"),
+            "{e}"
+        );
+        let e = steady_state(&p, 180, usize::MAX).unwrap_err();
+        assert!(e.to_string().contains("sub_steps"), "{e}");
+        let stop = AtomicBool::new(true);
+        let e = steady_state_stoppable(&p, 180, 16, &stop).unwrap_err();
+        assert_eq!(e, SolveError::Interrupted);
     }
 
     #[test]

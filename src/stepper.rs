@@ -22,8 +22,11 @@
 //! round-off. Outputs come from cubic Hermite interpolation between steps
 //! (which also conserves mass, since the derivatives sum to zero).
 
+use std::sync::atomic::AtomicBool;
+
 use crate::error::SolveError;
 use crate::flux::Operator;
+use crate::limits;
 use crate::model::initial_condition;
 use crate::params::Params;
 use crate::tridiag::TridiagLu;
@@ -193,11 +196,7 @@ pub fn validate_run(n_cells: usize, t_out: &[f64], tol: &Tolerances) -> Result<(
             "n_cells = {n_cells} is out of range: must be >= 15 (one cell per layer at least)"
         )));
     }
-    if n_cells > 1_000_000 {
-        return Err(SolveError::InvalidInput(format!(
-            "n_cells = {n_cells} is out of range: must be <= 1000000"
-        )));
-    }
+    limits::check_cells(n_cells)?;
     for (name, v) in [("rtol", tol.rtol), ("atol", tol.atol)] {
         if !(v.is_finite() && v > 0.0 && v < 1.0) {
             return Err(SolveError::InvalidInput(format!(
@@ -210,6 +209,7 @@ pub fn validate_run(n_cells: usize, t_out: &[f64], tol: &Tolerances) -> Result<(
             "t is empty: give at least one output time".into(),
         ));
     }
+    limits::check_output_times("t", t_out.len())?;
     for (i, &t) in t_out.iter().enumerate() {
         if !t.is_finite() || t < 0.0 {
             return Err(SolveError::InvalidInput(format!(
@@ -535,11 +535,35 @@ pub fn integrate(
     tol: Tolerances,
     sink: impl FnMut(usize, &[f64]),
 ) -> Result<Stats, SolveError> {
+    integrate_stoppable(p, n_cells, t_out, tol, sink, limits::never())
+}
+
+/// `integrate` that returns `SolveError::Interrupted` soon after `stop` is set
+/// (it is polled before every step attempt).
+pub fn integrate_stoppable(
+    p: &Params,
+    n_cells: usize,
+    t_out: &[f64],
+    tol: Tolerances,
+    sink: impl FnMut(usize, &[f64]),
+    stop: &AtomicBool,
+) -> Result<Stats, SolveError> {
+    // sizes first: nothing of n_cells is allocated before they pass
+    p.validate()?;
+    validate_run(n_cells, t_out, &tol)?;
     let mut out = CallbackOutput {
-        buf: vec![0.0; n_cells],
+        buf: limits::zeroed(n_cells, "a profile")?,
         sink,
     };
-    integrate_with(p, n_cells, t_out, tol, Tridiagonal::new(n_cells), &mut out)
+    integrate_with_stop(
+        p,
+        n_cells,
+        t_out,
+        tol,
+        Tridiagonal::new(n_cells),
+        &mut out,
+        stop,
+    )
 }
 
 /// `integrate` with a chosen Newton matrix (see `pressure_coupled`).
@@ -550,6 +574,19 @@ pub fn integrate_with<M: NewtonMatrix>(
     tol: Tolerances,
     matrix: M,
     out: &mut impl Output,
+) -> Result<Stats, SolveError> {
+    integrate_with_stop(p, n_cells, t_out, tol, matrix, out, limits::never())
+}
+
+/// `integrate_with`, polling `stop` before every step attempt.
+pub fn integrate_with_stop<M: NewtonMatrix>(
+    p: &Params,
+    n_cells: usize,
+    t_out: &[f64],
+    tol: Tolerances,
+    matrix: M,
+    out: &mut impl Output,
+    stop: &AtomicBool,
 ) -> Result<Stats, SolveError> {
     p.validate()?;
     validate_run(n_cells, t_out, &tol)?;
@@ -569,6 +606,7 @@ pub fn integrate_with<M: NewtonMatrix>(
     let mut h = initial_step(&w, &tol, t_end);
     let mut fresh_jac = true;
     while next < t_out.len() {
+        limits::check_stop(stop)?;
         if stats.steps + stats.rejected > MAX_STEPS {
             return Err(SolveError::NewtonFailure {
                 t,
@@ -646,7 +684,37 @@ pub fn simulate(
     t_out: &[f64],
     tol: Tolerances,
 ) -> Result<(Vec<f64>, Stats), SolveError> {
-    simulate_with(p, n_cells, t_out, tol, Tridiagonal::new(n_cells))
+    simulate_stoppable(p, n_cells, t_out, tol, limits::never())
+}
+
+/// `simulate` that returns `SolveError::Interrupted` soon after `stop` is set.
+pub fn simulate_stoppable(
+    p: &Params,
+    n_cells: usize,
+    t_out: &[f64],
+    tol: Tolerances,
+    stop: &AtomicBool,
+) -> Result<(Vec<f64>, Stats), SolveError> {
+    check_simulate(p, n_cells, t_out, &tol)?;
+    simulate_with_stop(p, n_cells, t_out, tol, Tridiagonal::new(n_cells), stop)
+}
+
+/// Everything a full-output run is given, sizes first, before any allocation:
+/// returns the length of the output (n_t x n_cells values, at most
+/// `limits::MAX_BYTES`).
+pub fn check_simulate(
+    p: &Params,
+    n_cells: usize,
+    t_out: &[f64],
+    tol: &Tolerances,
+) -> Result<usize, SolveError> {
+    let len = limits::check_buffer(
+        "the output c",
+        &[("len(t)", t_out.len()), ("n_cells", n_cells)],
+    )?;
+    p.validate()?;
+    validate_run(n_cells, t_out, tol)?;
+    Ok(len)
 }
 
 /// `simulate` with a chosen Newton matrix.
@@ -657,11 +725,24 @@ pub fn simulate_with<M: NewtonMatrix>(
     tol: Tolerances,
     matrix: M,
 ) -> Result<(Vec<f64>, Stats), SolveError> {
+    simulate_with_stop(p, n_cells, t_out, tol, matrix, limits::never())
+}
+
+/// `simulate_with`, polling `stop` before every step attempt.
+pub fn simulate_with_stop<M: NewtonMatrix>(
+    p: &Params,
+    n_cells: usize,
+    t_out: &[f64],
+    tol: Tolerances,
+    matrix: M,
+    stop: &AtomicBool,
+) -> Result<(Vec<f64>, Stats), SolveError> {
+    let len = check_simulate(p, n_cells, t_out, &tol)?;
     let mut out = FullOutput {
         n: n_cells,
-        c: vec![0.0; t_out.len() * n_cells],
+        c: limits::zeroed(len, "the output c")?,
     };
-    let stats = integrate_with(p, n_cells, t_out, tol, matrix, &mut out)?;
+    let stats = integrate_with_stop(p, n_cells, t_out, tol, matrix, &mut out, stop)?;
     Ok((out.c, stats))
 }
 
@@ -773,6 +854,55 @@ mod tests {
         }
         assert!(!err.is_input_error());
         assert!(err.to_string().contains("t = 0 s"), "{err}");
+    }
+
+    #[test]
+    fn sizes_are_refused_before_allocation() {
+        let p = Params::default();
+        let t = times(3600.0, 2.0);
+        // the 28.8 GB: an error naming the sizes and the bytes, not an abort
+        let e = simulate(&p, 2_000_000, &t, Tolerances::default()).unwrap_err();
+        let m = e.to_string();
+        assert!(e.is_input_error(), "{e:?}");
+        assert!(
+            m.contains("28816000000 bytes")
+                && m.contains("n_cells = 2000000")
+                && m.contains("len(t) = 1801"),
+            "{m}"
+        );
+        // sizes whose product overflows, and a grid no buffer is made for
+        assert!(simulate(&p, usize::MAX / 2, &t, Tolerances::default())
+            .unwrap_err()
+            .to_string()
+            .contains("more than"));
+        let e = integrate(
+            &p,
+            1usize << 40,
+            &[0.0, 1.0],
+            Tolerances::default(),
+            |_, _| {},
+        )
+        .unwrap_err();
+        assert!(e.to_string().contains("n_cells = 1099511627776"), "{e}");
+        // too many output times, even where the bytes would fit
+        let many: Vec<f64> = (0..=limits::MAX_OUTPUT_TIMES).map(|i| i as f64).collect();
+        let e = integrate(&p, 15, &many, Tolerances::default(), |_, _| {}).unwrap_err();
+        assert!(
+            e.to_string().starts_with("t has 1000001 output times"),
+            "{e}"
+        );
+    }
+
+    #[test]
+    fn a_set_stop_flag_interrupts_the_run() {
+        let p = Params::default();
+        let stop = AtomicBool::new(true);
+        let e =
+            simulate_stoppable(&p, 60, &[0.0, 3600.0], Tolerances::default(), &stop).unwrap_err();
+        assert_eq!(e, SolveError::Interrupted);
+        assert!(!e.is_input_error());
+        // only t = 0 needs no step: it is not interrupted
+        assert!(simulate_stoppable(&p, 60, &[0.0], Tolerances::default(), &stop).is_ok());
     }
 
     #[test]

@@ -3,12 +3,14 @@
 //! a measured map, the RMSD against it, so only small arrays leave the core.
 
 use std::panic::{catch_unwind, AssertUnwindSafe};
+use std::sync::atomic::AtomicBool;
 use std::sync::Arc;
 
 use rayon::prelude::*;
 
 use crate::error::SolveError;
 use crate::layers::{self, LayerMap};
+use crate::limits;
 use crate::params::Params;
 use crate::stepper::{self, Stats, Tolerances};
 
@@ -47,13 +49,39 @@ pub struct RunResult {
 
 /// Solve one run and reduce it to layers (and RMSD).
 pub fn run_one(spec: &RunSpec, n_cells: usize, tol: Tolerances) -> Result<RunResult, SolveError> {
+    run_one_stoppable(spec, n_cells, tol, limits::never())
+}
+
+/// The layer values a run's output takes: n_t x n_layers (`None` on overflow).
+fn output_len(spec: &RunSpec) -> Option<usize> {
+    let n_layers = spec.measured.as_ref().map_or(spec.n_layers, |m| m.n_layers);
+    spec.t_out.len().checked_mul(n_layers)
+}
+
+/// `run_one`, polling `stop` before every step attempt.
+pub fn run_one_stoppable(
+    spec: &RunSpec,
+    n_cells: usize,
+    tol: Tolerances,
+    stop: &AtomicBool,
+) -> Result<RunResult, SolveError> {
     let n_layers = spec.measured.as_ref().map_or(spec.n_layers, |m| m.n_layers);
     let n_t = spec.t_out.len();
     if n_layers == 0 {
         return Err(SolveError::InvalidInput("n_layers must be >= 1".into()));
     }
+    if n_layers > limits::MAX_CELLS {
+        return Err(SolveError::InvalidInput(format!(
+            "n_layers = {n_layers} is out of range: must be <= {}",
+            limits::MAX_CELLS
+        )));
+    }
+    // sizes before any allocation
+    limits::check_cells(n_cells)?;
+    limits::check_output_times("t", n_t)?;
+    let len = limits::check_buffer("the layer map", &[("len(t)", n_t), ("n_layers", n_layers)])?;
     if let Some(m) = &spec.measured {
-        if m.n_layers == 0 || m.c.len() != n_t * m.n_layers {
+        if m.n_layers == 0 || Some(m.c.len()) != n_t.checked_mul(m.n_layers) {
             return Err(SolveError::InvalidInput(format!(
                 "measured map has {} entries, expected {} times x {} layers",
                 m.c.len(),
@@ -67,11 +95,20 @@ pub fn run_one(spec: &RunSpec, n_cells: usize, tol: Tolerances) -> Result<RunRes
             ));
         }
     }
+    spec.params.validate()?;
+    stepper::validate_run(n_cells, &spec.t_out, &tol)?;
     let lm = LayerMap::new(n_cells, n_layers);
-    let mut out = vec![0.0; n_t * n_layers];
-    let stats = stepper::integrate(&spec.params, n_cells, &spec.t_out, tol, |k, prof| {
-        lm.apply(prof, &mut out[k * n_layers..(k + 1) * n_layers]);
-    })?;
+    let mut out = limits::zeroed(len, "the layer map")?;
+    let stats = stepper::integrate_stoppable(
+        &spec.params,
+        n_cells,
+        &spec.t_out,
+        tol,
+        |k, prof| {
+            lm.apply(prof, &mut out[k * n_layers..(k + 1) * n_layers]);
+        },
+        stop,
+    )?;
     let (layers, rmsd) = match &spec.measured {
         Some(m) => {
             let smooth = layers::moving_average(&out, n_t, n_layers, m.smoothing_frames);
@@ -95,7 +132,19 @@ pub fn run_guarded(
     n_cells: usize,
     tol: Tolerances,
 ) -> Result<RunResult, SolveError> {
-    match catch_unwind(AssertUnwindSafe(|| run_one(spec, n_cells, tol))) {
+    run_guarded_stoppable(spec, n_cells, tol, limits::never())
+}
+
+/// `run_guarded`, polling `stop`.
+pub fn run_guarded_stoppable(
+    spec: &RunSpec,
+    n_cells: usize,
+    tol: Tolerances,
+    stop: &AtomicBool,
+) -> Result<RunResult, SolveError> {
+    match catch_unwind(AssertUnwindSafe(|| {
+        run_one_stoppable(spec, n_cells, tol, stop)
+    })) {
         Ok(r) => r,
         Err(panic) => {
             let msg = panic
@@ -113,35 +162,86 @@ pub fn run_guarded(
 
 /// Run every spec in parallel. `threads` = None uses rayon's global pool
 /// (RAYON_NUM_THREADS or all cores); Some(n) a private pool of n threads.
+/// An error of the whole call (`sweep_stoppable`'s) is returned for every run.
 pub fn sweep(
     specs: &[RunSpec],
     n_cells: usize,
     tol: Tolerances,
     threads: Option<usize>,
 ) -> Vec<Result<RunResult, SolveError>> {
-    let work = || {
+    match sweep_stoppable(specs, n_cells, tol, threads, limits::never()) {
+        Ok(r) => r,
+        Err(e) => specs.iter().map(|_| Err(e.clone())).collect(),
+    }
+}
+
+/// Check what a whole sweep asks for before any run starts: `threads` in
+/// 1..=`limits::MAX_THREADS`, `n_cells` at most `limits::MAX_CELLS`, and the
+/// layer maps of all runs together (twice for the runs with a measured map,
+/// smoothed and raw) within `limits::MAX_BYTES`.
+pub fn check_sweep(
+    specs: &[RunSpec],
+    n_cells: usize,
+    threads: Option<usize>,
+) -> Result<(), SolveError> {
+    if let Some(n) = threads {
+        limits::check_threads(n)?;
+    }
+    limits::check_cells(n_cells)?;
+    let total = specs.iter().try_fold(0usize, |acc, s| {
+        let len = output_len(s)?;
+        let len = if s.measured.is_some() {
+            len.checked_mul(2)?
+        } else {
+            len
+        };
+        acc.checked_add(len)
+    });
+    let bytes = total.and_then(limits::f64_bytes);
+    match bytes {
+        Some(b) if b <= limits::MAX_BYTES => Ok(()),
+        _ => Err(SolveError::InvalidInput(format!(
+            "the layer maps of the sweep's {} runs (n_t x n_layers values per run, x 8 bytes)              would need {}, more than the {} bytes (4 GiB) one call may allocate:              fewer runs, output times (t) or n_layers",
+            specs.len(),
+            bytes.map_or_else(|| "more than usize::MAX bytes".into(), |b| format!("{b} bytes")),
+            limits::MAX_BYTES
+        ))),
+    }
+}
+
+/// `sweep`, refusing a call that is too large as a whole (`check_sweep`)
+/// before any thread is started, and returning `SolveError::Interrupted`
+/// soon after `stop` is set (polled before every run and inside each run).
+pub fn sweep_stoppable(
+    specs: &[RunSpec],
+    n_cells: usize,
+    tol: Tolerances,
+    threads: Option<usize>,
+    stop: &AtomicBool,
+) -> Result<Vec<Result<RunResult, SolveError>>, SolveError> {
+    check_sweep(specs, n_cells, threads)?;
+    let work = || -> Vec<Result<RunResult, SolveError>> {
         specs
             .par_iter()
-            .map(|s| run_guarded(s, n_cells, tol))
+            .map(|s| {
+                limits::check_stop(stop)?;
+                run_guarded_stoppable(s, n_cells, tol, stop)
+            })
             .collect()
     };
-    match threads {
-        Some(n) => match rayon::ThreadPoolBuilder::new()
-            .num_threads(n.max(1))
-            .build()
-        {
+    let out = match threads {
+        Some(n) => match rayon::ThreadPoolBuilder::new().num_threads(n).build() {
             Ok(pool) => pool.install(work),
-            Err(e) => specs
-                .iter()
-                .map(|_| {
-                    Err(SolveError::InvalidInput(format!(
-                        "cannot start {n} threads: {e}"
-                    )))
-                })
-                .collect(),
+            Err(e) => {
+                return Err(SolveError::InvalidInput(format!(
+                    "threads = {n}: cannot start them: {e}"
+                )))
+            }
         },
         None => work(),
-    }
+    };
+    limits::check_stop(stop)?;
+    Ok(out)
 }
 
 #[cfg(test)]
@@ -200,6 +300,47 @@ mod tests {
             assert!((mean - b.layers[k]).abs() < 1e-12);
         }
         assert!(run_one(&spec(0), 66, Tolerances::default()).is_err());
+    }
+
+    fn spec(t: Vec<f64>, n_layers: usize) -> RunSpec {
+        RunSpec {
+            params: Params::default(),
+            t_out: Arc::new(t),
+            measured: None,
+            n_layers,
+        }
+    }
+
+    #[test]
+    fn threads_and_sizes_are_refused_before_any_thread_starts() {
+        let specs = vec![spec(vec![0.0, 10.0], 15); 2];
+        let tol = Tolerances::default();
+        for bad in [0, 10_000] {
+            let e = sweep_stoppable(&specs, 30, tol, Some(bad), limits::never()).unwrap_err();
+            assert!(e.to_string().contains(&format!("threads = {bad}")), "{e}");
+            // the old entry point reports it for every run
+            let res = sweep(&specs, 30, tol, Some(bad));
+            assert!(res.iter().all(|r| r.as_ref().unwrap_err().is_input_error()));
+        }
+        // 5000 runs x 1000 times x 120000 layers: far beyond 4 GiB
+        let big = spec((0..1000).map(|i| i as f64).collect(), 120_000);
+        let e = check_sweep(&vec![big.clone(); 5000], 30, None).unwrap_err();
+        assert!(
+            e.to_string().contains("5000 runs") && e.to_string().contains("bytes"),
+            "{e}"
+        );
+        let e = run_one(&big, 30, tol).unwrap_err();
+        assert!(e.to_string().contains("n_layers = 120000"), "{e}");
+        let e = check_sweep(&specs, 1 << 30, None).unwrap_err();
+        assert!(e.to_string().contains("n_cells"), "{e}");
+    }
+
+    #[test]
+    fn a_set_stop_flag_interrupts_the_sweep() {
+        let specs = vec![spec(vec![0.0, 3600.0], 15); 4];
+        let stop = AtomicBool::new(true);
+        let e = sweep_stoppable(&specs, 30, Tolerances::default(), Some(2), &stop).unwrap_err();
+        assert_eq!(e, SolveError::Interrupted);
     }
 
     #[test]

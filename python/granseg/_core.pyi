@@ -3,6 +3,14 @@ extension: thin conversions only; granseg.model wraps it with validation.
 
 SI units throughout. Parameter dicts map MODEL.md names (see ``defaults()``)
 to floats; missing names take their defaults.
+
+Limits (``limits()``, src/limits.rs): sizes are checked before anything is
+allocated; a call whose outputs would exceed ``max_bytes`` (4 GiB), more than
+``max_cells`` cells, ``max_output_times`` times per run or ``max_threads``
+threads raises ValueError naming the parameter (and the bytes); an allocation
+that still fails raises MemoryError. Ctrl-C stops simulate, steady_state and
+sweep within about 0.1 s plus one step (KeyboardInterrupt), when called from
+the main thread.
 """
 
 from typing import TypedDict
@@ -39,6 +47,19 @@ def law_keys() -> list[str]:
 def materials() -> dict[str, float]:
     """Material densities of MODEL.md, kg/m^3."""
 
+class Limits(TypedDict):
+    """Ceilings of one call (``limits.rs``)."""
+
+    max_bytes: int
+    max_cells: int
+    max_output_times: int
+    max_sub_steps: int
+    max_threads: int
+
+def limits() -> Limits:
+    """The ceilings of one call: output bytes, cells, output times per run, steady-state
+    sub-steps per cell, sweep threads."""
+
 def default_tolerances() -> tuple[float, float]:
     """Default (rtol, atol) of the adaptive stepper."""
 
@@ -51,7 +72,9 @@ def derived(params: dict[str, float]) -> dict[str, float]:
 def velocity_profile(
     params: dict[str, float], z: npt.NDArray[np.float64], t: float
 ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
-    """Velocity [m/s] and shear rate [1/s] at heights z [m], time t [s]."""
+    """Velocity [m/s] and shear rate [1/s] at heights z [m], time t [s].
+
+    ValueError unless every z lies in [0, H]."""
 
 def simulate(
     params: dict[str, float],
@@ -60,12 +83,19 @@ def simulate(
     rtol: float,
     atol: float,
 ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64], SolverStats]:
-    """One run: (z (n_cells,), c (n_t, n_cells), solver stats). GIL released."""
+    """One run: (z (n_cells,), c (n_t, n_cells), solver stats). GIL released.
+
+    ValueError before any allocation if c would exceed ``max_bytes`` (naming len(t),
+    n_cells and the bytes), n_cells > ``max_cells`` or len(t) > ``max_output_times``;
+    KeyboardInterrupt on Ctrl-C."""
 
 def steady_state(
     params: dict[str, float], n_cells: int, sub_steps: int = 16
 ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
-    """Zero-flux profile as cell averages: (z, c)."""
+    """Zero-flux profile as cell averages: (z, c). GIL released.
+
+    ValueError for n_cells outside 15..``max_cells`` or sub_steps > ``max_sub_steps``;
+    KeyboardInterrupt on Ctrl-C."""
 
 def layer_means(c: npt.NDArray[np.float64], n_layers: int = 15) -> npt.NDArray[np.float64]:
     """(n_t, n_cells) profiles -> (n_t, n_layers) means over equal layers."""
@@ -84,7 +114,10 @@ def sweep(
     atol: float,
     threads: int | None = None,
 ) -> tuple[list[npt.NDArray[np.float64]], npt.NDArray[np.float64], list[SolverStats]]:
-    """Runs in parallel (rayon, GIL released): (layers per run, RMSD per run, stats)."""
+    """Runs in parallel (rayon, GIL released): (layers per run, RMSD per run, stats).
+
+    ValueError before any thread starts for threads outside 1..``max_threads``, n_cells >
+    ``max_cells`` or layer maps above ``max_bytes`` in all; KeyboardInterrupt on Ctrl-C."""
 
 def _panic_for_testing() -> None:
     """Test hook: a deliberate panic inside the core, raised as _core.SolverError."""

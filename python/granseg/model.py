@@ -45,6 +45,11 @@ LAW_KEYS: tuple[str, ...] = tuple(_core.law_keys())
 _LAW_KEY_SET = frozenset(LAW_KEYS)
 RTOL, ATOL = _core.default_tolerances()
 N_CELLS = 180
+#: Ceilings of one call, from the core (src/limits.rs): the bytes its outputs may take (4 GiB),
+#: cells, output times per run, worker threads of a sweep. Checked before anything is allocated.
+_LIMITS: dict[str, int] = dict(_core.limits())
+MAX_BYTES, MAX_CELLS = _LIMITS["max_bytes"], _LIMITS["max_cells"]
+MAX_OUTPUT_TIMES, MAX_THREADS = _LIMITS["max_output_times"], _LIMITS["max_threads"]
 
 
 def defaults() -> dict[str, float]:
@@ -71,13 +76,18 @@ def _params(overrides: Mapping[str, Any], where: str = "") -> dict[str, float]:
     return out
 
 
-def _times(t: Any, name: str = "t") -> np.ndarray:
+def _times(t: Any, name: str = "t", n_cells: int | None = None) -> np.ndarray:
     try:
         arr = np.ascontiguousarray(t, dtype=np.float64)
     except (TypeError, ValueError):
         raise ValueError(f"{name} must be an array of times in seconds") from None
     if arr.ndim != 1 or arr.size == 0:
         raise ValueError(f"{name} must be a non-empty 1-D array of times in seconds, got shape {arr.shape}")
+    if arr.size > MAX_OUTPUT_TIMES:  # before any check that copies it
+        need = (f"the output c alone would need {arr.size} x {n_cells} x 8 = {arr.size * n_cells * 8} bytes"
+                if n_cells is not None else f"{arr.size * 8} bytes for the times alone")
+        raise ValueError(f"{name} has {arr.size} output times: at most {MAX_OUTPUT_TIMES} per run ({need}); "
+                         "use a longer output step")
     if not np.all(np.isfinite(arr)) or np.any(arr < 0):
         raise ValueError(f"{name} must hold finite times >= 0 s")
     if np.any(np.diff(arr) <= 0):
@@ -144,6 +154,10 @@ class Solution:
     def layers(self, n_layers: int = N_LAYERS) -> np.ndarray:
         """Mean of c over each of ``n_layers`` equal layers (D_p high for 15):
         (n_t, n_layers), layer 0 at the bottom, as a camera would see it."""
+        whole = (not isinstance(n_layers, bool) and isinstance(n_layers, int | float | np.integer | np.floating)
+                 and math.isfinite(n_layers) and n_layers == int(n_layers))  # 15.0 is 15; 2.5 is refused
+        if not whole or not 1 <= n_layers <= MAX_CELLS:
+            raise ValueError(f"n_layers = {n_layers!r} must be a whole number in 1..{MAX_CELLS}")
         return np.asarray(_core.layer_means(np.ascontiguousarray(self.c), int(n_layers)))
 
     @property
@@ -178,8 +192,10 @@ def simulate(
     (1801, 15)
     """
     p = _params(params)
-    times = _times(t)
     n_cells, rtol, atol = _solver_options(n_cells, rtol, atol)
+    times = _times(t, n_cells=n_cells)
+    # the core refuses an output above MAX_BYTES (naming len(t), n_cells and the bytes), more
+    # than MAX_CELLS cells, and stops at Ctrl-C (KeyboardInterrupt)
     z, c, stats = _call(_core.simulate, p, times, n_cells, rtol, atol)
     return Solution(t=times, z=np.asarray(z), c=np.asarray(c), params=p, stats=dict(stats))
 
@@ -188,7 +204,7 @@ def steady_state(*, n_cells: int = N_CELLS, **params: float) -> tuple[np.ndarray
     """The long-time profile (zero flux everywhere), solved directly in z.
 
     Returns ``(z, c)``: cell centres in m and cell averages of c on
-    ``n_cells`` cells, with depth-mean exactly c0.
+    ``n_cells`` cells (15 to ``MAX_CELLS``), with depth-mean exactly c0. Ctrl-C stops it.
     """
     p = _params(params)
     n_cells, _, _ = _solver_options(n_cells, None, None)
@@ -210,6 +226,11 @@ def velocity_profile(z: Any, t: float = 0.0, **params: float) -> tuple[np.ndarra
     z (the exponential band itself when the law is not set)."""
     z = np.ascontiguousarray(z, dtype=np.float64)
     full = _params(params)
+    H = full["H"]
+    outside = ~((z >= -1e-9 * H) & (z <= H * (1 + 1e-9)))  # NaN is outside too
+    if outside.any():
+        j = tuple(int(i) for i in np.argwhere(outside)[0])
+        raise ValueError(f"z must lie in [0, H] = [0, {H}] m (the bed): z{list(j)} = {float(z[j])!r}")
     v, g = _core.velocity_profile(full, z.ravel(), float(t))
     if any(k.startswith("law_shear_z_") and float(params[k]) != 0.0 for k in params):
         v = _integrated_velocity(full, z.ravel(), float(t))
@@ -390,7 +411,8 @@ def sweep(
     n_layers : layers of the output maps without a measured map (a map sets
         its own): one number for every case, or one per case.
     n_cells, rtol, atol : solver settings as in :func:`simulate`.
-    threads : worker threads for this call (default: RAYON_NUM_THREADS or all cores).
+    threads : worker threads for this call, at most ``MAX_THREADS`` (default:
+        RAYON_NUM_THREADS or all cores).
     client : a ``dask.distributed.Client``; the runs are split into chunks,
         each solved by the Rust sweep on a worker.
     progress : show a progress bar (default: for large sweeps on a terminal).
@@ -402,8 +424,10 @@ def sweep(
         raise ValueError("cases is empty: give at least one experiment")
     points = _grid_points(grid)
     n_cells, rtol, atol = _solver_options(n_cells, rtol, atol)
-    if threads is not None and (not isinstance(threads, int) or threads < 1):
-        raise ValueError(f"threads = {threads!r} must be a positive integer")
+    if threads is not None and (isinstance(threads, bool) or not isinstance(threads, int | np.integer)
+                                or not 1 <= threads <= MAX_THREADS):
+        raise ValueError(f"threads = {threads!r} must be a whole number in 1..{MAX_THREADS}")
+    threads = None if threads is None else int(threads)
 
     if measured is not None:
         if len(measured) != len(case_list):
