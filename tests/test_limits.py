@@ -84,7 +84,8 @@ def test_the_calls_that_aborted_now_raise_in_a_live_process():
 
 
 def test_the_cli_refuses_huge_runs_with_one_line(tmp_path):
-    for args, what in ((["--n-cells", "2000000"], "28816000000 bytes"), (["--t-end", "1e7"], "output times")):
+    for args, what in ((["--n-cells", "2000000"], "28816000000 bytes"), (["--t-end", "1e7"], "output times"),
+                      (["--t-end", "1e9"], "output times"), (["--dt", "1e-6"], "output times")):
         r = subprocess.run([sys.executable, "-c", "import sys; from granseg.cli import main; sys.exit(main(sys.argv[1:]))",
                             "simulate", *args, "--out", str(tmp_path / "x")], capture_output=True, text=True, timeout=120)
         assert r.returncode == 2, r.stderr

@@ -106,6 +106,13 @@ def run(args: argparse.Namespace) -> int:
         params.update(_measured(args, params))
     if not (args.t_end > 0 and args.dt > 0):
         raise ValueError("--t-end and --dt must be > 0 s")
+    if like is None:
+        from granseg.model import MAX_OUTPUT_TIMES
+
+        n_out = np.floor(args.t_end / args.dt) + 1  # counted before the array is built
+        if not np.isfinite(n_out) or n_out > MAX_OUTPUT_TIMES:
+            raise ValueError(f"--t-end {args.t_end:g} s / --dt {args.dt:g} s asks for {n_out:.3g} output times; "
+                             f"at most {MAX_OUTPUT_TIMES} per run (raise --dt)")
     t = like.t if like is not None else np.arange(0.0, args.t_end + 0.5 * args.dt, args.dt)
     stem = Path(args.out)
     outputs = [stem.with_name(stem.name + ext) for ext in (".png", ".pdf")]
