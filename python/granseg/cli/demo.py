@@ -109,7 +109,7 @@ def run(args: argparse.Namespace) -> int:
     _say("campaign", f"{len(maps)} virtual experiments (paper's Table 1 conditions) in {camp}; "
                      f"hidden: delta/H = 0.18 (M~/0.5)^-{HIDDEN['strength']}")
     _say("frames", f"rendering {N_FRAMES} frames of {FRAMES_EXPERIMENT} and measuring them back "
-                   "(about 30 s) ...")
+                   "(about 10 s on 2 idle cores) ...")
     try:
         _frames(next(m for m in maps if m.name == FRAMES_EXPERIMENT), out, args.force)
     except Exception as exc:  # noqa: BLE001 - the demo goes on without this optional step
@@ -122,7 +122,7 @@ def run(args: argparse.Namespace) -> int:
                       f"mean RMSD {cal.rmsd_mean:.3f}"
                       + "".join(f" ({k} on the edge of its range)" for k in cal.at_bound))
     _say("diagnose", "fitting every catalogued cause and scoring it on experiments it did not see, then "
-                     "drawing the report (about 1 min; a line per stage) ...")
+                     "drawing the report (about 15 s on 2 idle cores; a line per stage) ...")
     d = diagnose(camp, calibration=cal, force=args.force, progress="stages")
     # the report says on its first line that the data are synthetic, and which command made them
     write_outputs(d, report=out / "report", json=out / "diagnosis.json", force=args.force,
