@@ -41,3 +41,23 @@ def test_sweep_takes_a_whole_float_window_and_missing_readings():
 def test_calibrate_names_a_campaign_that_is_not_one(campaign, message):
     with pytest.raises(ValueError, match=message):
         granseg.calibrate(campaign, progress=False)
+
+
+@pytest.mark.parametrize("error, code, words", [
+    (RuntimeError("boom"), 4, "internal error: RuntimeError: boom"),
+    (MemoryError(), 1, "out of memory"),
+    (OverflowError("int too large"), 4, "OverflowError: int too large"),
+])
+def test_the_cli_ends_any_failure_in_one_line(monkeypatch, capsys, error, code, words):
+    """Whatever goes wrong, the command line says it in one line; -v adds the traceback."""
+    from granseg.cli import init_experiment, main
+
+    def fail(args):
+        raise error
+
+    monkeypatch.setattr(init_experiment, "run", fail)
+    assert main(["init-experiment", "somewhere"]) == code
+    err = capsys.readouterr().err
+    assert words in err and "Traceback" not in err and len(err.strip().splitlines()) == 1, err
+    assert main(["-v", "init-experiment", "somewhere"]) == code
+    assert "Traceback" in capsys.readouterr().err

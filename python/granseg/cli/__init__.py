@@ -48,14 +48,18 @@ def main(argv: list[str] | None = None) -> int:
     logging.getLogger("fontTools").setLevel(logging.WARNING)
     # warnings as one line a user reads, not Python's "file:line: Class: ..." with a source line
     warnings.formatwarning = lambda message, category, *rest, **kw: f"granseg: warning: {message}\n"
-    # Only granseg's errors and the built-ins bad input raises are caught; any
-    # other exception is a bug in granseg, and its traceback is what a bug
-    # report needs, so it is not hidden behind a last-resort handler.
+    # Every failure ends as one line naming what went wrong; the traceback, which a bug
+    # report needs, is printed only under -v (issue 14).
     try:
         return int(args.func(args) or 0)
     except KeyboardInterrupt:
         print("granseg: interrupted", file=sys.stderr)
         return 130
+    except MemoryError as exc:
+        _traceback(args)
+        print(f"granseg {args.command}: error: out of memory ({exc or 'the request is too large'}); "
+              "ask for less (fewer cells, output times or frames)", file=sys.stderr)
+        return 1
     except (ValueError, OSError) as exc:
         # Bad input: argument validation (ValueError), a bad map or frame
         # (MapFormatError, FlaggedMapError, BadFrame are ValueErrors), a user
@@ -67,6 +71,19 @@ def main(argv: list[str] | None = None) -> int:
         # The input was fine but the work failed (SolverError, FitError).
         print(f"granseg {args.command}: error: {exc}", file=sys.stderr)
         return 1
+    except Exception as exc:  # noqa: BLE001 - the last resort: a bug, said in one line
+        _traceback(args)
+        print(f"granseg {args.command}: internal error: {type(exc).__name__}: {exc} (a bug in granseg; "
+              "run again with -v for the traceback to report it)", file=sys.stderr)
+        return 4
+
+
+def _traceback(args: argparse.Namespace) -> None:
+    """Print the traceback of the exception being handled when asked for (-v)."""
+    if getattr(args, "verbose", False):
+        import traceback
+
+        traceback.print_exc()
 
 
 if __name__ == "__main__":
