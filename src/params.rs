@@ -225,7 +225,14 @@ impl Params {
                 "< v0 (the bottom-wall speed)",
             ),
             ("b", self.b, self.b > 0.0, "> 0"),
-            ("D_p", self.d_p, self.d_p > 0.0, "> 0 m"),
+            // a bed of fewer than two grains is no granular continuum (and
+            // the initial interface, smoothed over one diameter, needs room)
+            (
+                "D_p",
+                self.d_p,
+                self.d_p > 0.0 && self.d_p <= 0.5 * self.h,
+                "in (0, H/2] m",
+            ),
             ("H", self.h, self.h > 0.0, "> 0 m"),
             (
                 "phi_s",

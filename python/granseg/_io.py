@@ -36,10 +36,12 @@ __all__ = [
 
 
 def check_writable(path: str | os.PathLike, force: bool = False) -> Path:
-    """Return ``path`` as a Path after checking it may be written.
+    """Return ``path`` as a Path after checking it may be written, before any work is done.
 
-    Raises OutputExistsError if the file exists and ``force`` is false, and
-    FileNotFoundError if its folder does not exist.
+    Raises OutputExistsError if the file exists and ``force`` is false,
+    IsADirectoryError if it is a folder, FileNotFoundError if its folder does
+    not exist, NotADirectoryError if that "folder" is a file, and
+    PermissionError if nothing can be created there (a read-only disk, /proc).
     """
     p = Path(path)
     if p.exists() and not force:
@@ -48,28 +50,66 @@ def check_writable(path: str | os.PathLike, force: bool = False) -> Path:
         )
     if p.exists() and p.is_dir():
         raise IsADirectoryError(f"{p}: is a directory, expected a file path")
-    if not p.parent.exists():
-        raise FileNotFoundError(f"{p.parent}: output folder does not exist")
+    _check_folder(p.parent)
     return p
+
+
+def _check_folder(folder: Path) -> None:
+    """The folder exists, is a folder, and a file can be created in it (tried, then removed:
+    permissions, read-only mounts and pseudo file systems all answer the same way)."""
+    if not folder.exists():
+        if any(parent.is_file() for parent in folder.parents):
+            bad = next(parent for parent in folder.parents if parent.is_file())
+            raise NotADirectoryError(f"{folder}: cannot be an output folder, {bad} is a file")
+        raise FileNotFoundError(f"{folder}: output folder does not exist")
+    if not folder.is_dir():
+        raise NotADirectoryError(f"{folder}: is a file, not an output folder")
+    try:
+        with tempfile.TemporaryFile(dir=folder, prefix=".granseg-probe."):
+            pass
+    except OSError as exc:
+        raise PermissionError(f"{folder}: cannot create a file there ({exc.strerror or exc})") from None
+
+
+def check_creatable(folder: str | os.PathLike) -> Path:
+    """Check that ``folder`` exists as a writable folder or can be made with its parents (the
+    nearest existing ancestor is a writable folder); nothing is created."""
+    folder = Path(folder)
+    existing = folder
+    while not existing.exists() and existing.parent != existing:
+        existing = existing.parent
+    if existing != folder and existing.is_file():
+        raise NotADirectoryError(f"{folder}: cannot be made, {existing} is a file")
+    _check_folder(existing)
+    return folder
+
+
+def check_output_dir(out: str | os.PathLike, names: Sequence[str], force: bool = False) -> Path:
+    """Check that folder ``out`` can receive outputs ``names`` without creating anything: what
+    :func:`prepare_output_dir` checks, for callers that must fail before long work starts.
+
+    Raises NotADirectoryError if ``out`` is a file, FileNotFoundError if its
+    parent does not exist, PermissionError if it cannot be written, and
+    OutputExistsError if any of ``names`` exists and ``force`` is false.
+    """
+    out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise NotADirectoryError(f"{out}: exists and is not a directory")
+    _check_folder(out if out.exists() else out.parent)
+    clash = [n for n in names if (out / n).exists()]
+    if clash and not force:
+        raise OutputExistsError(f"{out}: already holds {clash}; pass force=True (CLI: --force)")
+    return out
 
 
 def prepare_output_dir(out: str | os.PathLike, names: Sequence[str], force: bool = False, *,
                        folders: Sequence[str] = ()) -> Path:
     """Return folder ``out`` as a Path, ready for outputs ``names`` (files or folders in it).
 
-    Raises NotADirectoryError if ``out`` is a file, FileNotFoundError if its
-    parent does not exist, and OutputExistsError if any of ``names`` exists
-    and ``force`` is false; nothing is created until all checks pass. Then
-    ``out`` and its sub-folders ``folders`` are made.
+    Checks as :func:`check_output_dir` does; nothing is created until all
+    checks pass. Then ``out`` and its sub-folders ``folders`` are made.
     """
-    out = Path(out)
-    if out.exists() and not out.is_dir():
-        raise NotADirectoryError(f"{out}: exists and is not a directory")
-    if not out.parent.exists():
-        raise FileNotFoundError(f"{out.parent}: output folder does not exist")
-    clash = [n for n in names if (out / n).exists()]
-    if clash and not force:
-        raise OutputExistsError(f"{out}: already holds {clash}; pass force=True (CLI: --force)")
+    out = check_output_dir(out, names, force)
     for sub in (".", *folders):
         (out / sub).mkdir(exist_ok=True)
     return out
@@ -155,11 +195,15 @@ def save_json(path: str | os.PathLike, obj: Any, force: bool = False) -> Path:
         raise TypeError(f"cannot write {type(o).__name__} to JSON")
 
     text = json.dumps(_nan_to_none(obj), indent=2, default=default, allow_nan=False)
+    return atomic_write_text(path, text + "\n", force)
 
-    def write(tmp: Path) -> None:
-        tmp.write_text(text + "\n", encoding="utf-8")
 
-    return atomic_write(path, write, force)
+def atomic_write_text(path: str | os.PathLike, text: str, force: bool = False) -> Path:
+    """Write ``text`` as UTF-8, atomically. A file name that is not valid UTF-8 reaches Python
+    as lone surrogates (``\\udcff``); they are written as that escape, readable, rather than
+    failing the whole report or JSON at the last step."""
+    return atomic_write(path, lambda tmp: tmp.write_text(text, encoding="utf-8", errors="backslashreplace"),
+                        force)
 
 
 def _nan_to_none(obj: Any) -> Any:

@@ -69,6 +69,8 @@ def _params(overrides: Mapping[str, Any], where: str = "") -> dict[str, float]:
             out[name] = float(value)
         except (TypeError, ValueError):
             raise ValueError(f"{where}parameter {name} = {value!r} is not a number") from None
+        except OverflowError:  # an int beyond any float, e.g. 10**400 from JSON
+            raise ValueError(f"{where}parameter {name} = {_short(value)} is too large for a number") from None
     try:
         _core.validate(out)
     except ValueError as exc:
@@ -76,11 +78,17 @@ def _params(overrides: Mapping[str, Any], where: str = "") -> dict[str, float]:
     return out
 
 
+def _short(value: Any) -> str:
+    """``repr`` of a value cut to a readable length (a 400-digit integer stays one line)."""
+    text = repr(value)
+    return text if len(text) <= 40 else f"{text[:20]}...({len(text)} characters)"
+
+
 def _times(t: Any, name: str = "t", n_cells: int | None = None) -> np.ndarray:
     try:
         arr = np.ascontiguousarray(t, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise ValueError(f"{name} must be an array of times in seconds") from None
+    except (TypeError, ValueError, OverflowError):
+        raise ValueError(f"{name} must be an array of times in seconds (finite numbers)") from None
     if arr.ndim != 1 or arr.size == 0:
         raise ValueError(f"{name} must be a non-empty 1-D array of times in seconds, got shape {arr.shape}")
     if arr.size > MAX_OUTPUT_TIMES:  # before any check that copies it
@@ -109,10 +117,15 @@ def _case_times(t: Any, n_cases: int) -> list[np.ndarray]:
 def _solver_options(n_cells: Any, rtol: float | None, atol: float | None) -> tuple[int, float, float]:
     if isinstance(n_cells, bool) or not isinstance(n_cells, int | np.integer):
         raise ValueError(f"n_cells = {n_cells!r} must be an integer >= 15")
-    if n_cells < 15:
-        raise ValueError(f"n_cells = {n_cells} is out of range: must be >= 15 (one cell per layer at least)")
-    rtol = RTOL if rtol is None else float(rtol)
-    atol = ATOL if atol is None else float(atol)
+    # the core checks the upper limit (naming the bytes asked for); a number beyond its integers stops here
+    if not 15 <= n_cells < 2**63:
+        raise ValueError(f"n_cells = {_short(n_cells)} is out of range: must be in 15..{MAX_CELLS} "
+                         "(one cell per layer at least)")
+    try:
+        rtol = RTOL if rtol is None else float(rtol)
+        atol = ATOL if atol is None else float(atol)
+    except (TypeError, ValueError, OverflowError):
+        raise ValueError(f"rtol = {_short(rtol)}, atol = {_short(atol)}: each must be a number in (0, 1)") from None
     for name, v in (("rtol", rtol), ("atol", atol)):
         if not (math.isfinite(v) and 0 < v < 1):
             raise ValueError(f"{name} = {v} is out of range: must be in (0, 1)")
@@ -304,8 +317,8 @@ def _grid_points(grid: Mapping[str, Iterable[float]] | None) -> list[dict[str, f
         for v in vals:
             try:
                 fv = float(v)
-            except (TypeError, ValueError):
-                raise ValueError(f"grid: {name} value {v!r} is not a number") from None
+            except (TypeError, ValueError, OverflowError):
+                raise ValueError(f"grid: {name} value {_short(v)} is not a finite number") from None
             if not math.isfinite(fv):
                 raise ValueError(f"grid: {name} value {v!r} is not finite")
         keys.append(name)

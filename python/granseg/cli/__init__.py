@@ -44,8 +44,13 @@ def main(argv: list[str] | None = None) -> int:
         level=logging.DEBUG if args.verbose else logging.INFO,
         format="%(message)s",
     )
-    # matplotlib's PDF backend logs every font subset at INFO through fontTools
+    # matplotlib's PDF backend logs every font subset at INFO through fontTools, and its own
+    # font and backend chatter at DEBUG; -v is for granseg's log
     logging.getLogger("fontTools").setLevel(logging.WARNING)
+    logging.getLogger("matplotlib").setLevel(logging.WARNING)
+    # a path that is not valid UTF-8 (lone surrogates in Python) is printed escaped, not a crash
+    if hasattr(sys.stdout, "reconfigure"):
+        sys.stdout.reconfigure(errors="backslashreplace")
     # warnings as one line a user reads, not Python's "file:line: Class: ..." with a source line
     warnings.formatwarning = lambda message, category, *rest, **kw: f"granseg: warning: {message}\n"
     # Every failure ends as one line naming what went wrong; the traceback, which a bug
@@ -61,13 +66,15 @@ def main(argv: list[str] | None = None) -> int:
               "ask for less (fewer cells, output times or frames)", file=sys.stderr)
         return 1
     except (ValueError, OSError) as exc:
+        _traceback(args)
         # Bad input: argument validation (ValueError), a bad map or frame
         # (MapFormatError, FlaggedMapError, BadFrame are ValueErrors), a user
         # file missing, unreadable or already there (OSError: FileNotFoundError,
-        # OutputExistsError, PermissionError). One clear line, no traceback.
+        # OutputExistsError, PermissionError). One clear line (the traceback under -v).
         print(f"granseg {args.command}: error: {exc}", file=sys.stderr)
         return 2
     except GransegError as exc:
+        _traceback(args)
         # The input was fine but the work failed (SolverError, FitError).
         print(f"granseg {args.command}: error: {exc}", file=sys.stderr)
         return 1

@@ -167,8 +167,7 @@ def diagnose(
         :mod:`granseg.diagnosis.velocity_check`).
     """
     t_start = time.perf_counter()
-    if json is not None:
-        check_writable(json, force)
+    check_outputs(json=json, report=report, force=force)
     candidates = catalogue.build(causes)
     log = _printer(progress)
     maps = _as_maps(campaign)
@@ -246,6 +245,18 @@ def _velocity_check(velocity: Any, base: Fit, load_fit: Fit | None, log: Callabl
         log(f"shear band, maps against footage: {p['parameter']} {p['fitted']:.3f} vs {p['measured']:.3f} "
             f"({'agree' if p['agrees'] else 'disagree'}, z = {p['z'] if p['z'] is None else round(p['z'], 1)})")
     return check
+
+
+def check_outputs(*, json: str | os.PathLike | None, report: str | os.PathLike | None, force: bool) -> None:
+    """Check the JSON file and the report folder can be written, before the work starts: a
+    clash found after minutes of fitting loses them (issue 14)."""
+    if json is not None:
+        check_writable(json, force)
+    if report is not None:
+        from granseg._io import check_output_dir
+        from granseg.report.diagnosis import OUTPUTS
+
+        check_output_dir(report, OUTPUTS, force)
 
 
 def _write_outputs(diag: Diagnosis, json: Any, report: Any, force: bool, log: Callable[[str], None]) -> None:

@@ -17,7 +17,7 @@ from __future__ import annotations
 from granseg.measure.camera import Undistorter, calibrate_camera
 from granseg.measure.detect import detect_particles
 from granseg.measure.experiment import Experiment, load_experiment
-from granseg.measure.pipeline import Analysis, BadFrameWarning, analyze
+from granseg.measure.pipeline import Analysis, BadFrameWarning, GreyFramesWarning, analyze
 
-__all__ = ["Analysis", "BadFrameWarning", "Experiment", "Undistorter", "analyze",
+__all__ = ["Analysis", "BadFrameWarning", "GreyFramesWarning", "Experiment", "Undistorter", "analyze",
            "calibrate_camera", "detect_particles", "load_experiment"]

@@ -75,10 +75,45 @@ def _parse(p: Path, raw: dict[str, Any]) -> Experiment:
         c0=get.number("c0", lo=0, hi=1), M_g=get.number("M_g", lo=0), M_w=get.number("M_w", lo=0),
         fps=get.number("fps", lo=0, required=False), camera_matrix=k, dist_coeffs=dist.ravel(),
         window=tuple(float(v) for v in window),
-        particle_diameter_px=get.number("particle_diameter_px", lo=4),
-        t0=get.number("t0", required=False) or 0.0,
+        particle_diameter_px=_diameter(p, get, window),
+        t0=_start_time(p, get),
         colour_ranges={f: get.array(f, (2, 3)) for f in COLOUR_RANGES if f in raw},
     )
+
+
+def _diameter(p: Path, get: _Fields, window: np.ndarray) -> float:
+    """The sphere diameter [px]: at least 4 px to be detected, and a bed of spheres needs
+    the window to hold at least one across and two in height (a bigger value would also ask
+    OpenCV for gigabytes of template tables)."""
+    d = get.number("particle_diameter_px", lo=4)
+    width, height = window[2] - window[0], window[3] - window[1]
+    if d > width or 2 * d > height:
+        raise ValueError(f"{p}: field 'particle_diameter_px': {d:g} px does not fit the window "
+                         f"({width:.0f} x {height:.0f} px): the window must hold at least one sphere across "
+                         "and two in height")
+    return d
+
+
+def _start_time(p: Path, get: _Fields) -> float:
+    """t0 [s], the time of the first frame after the shear started (0 when not given)."""
+    t0 = get.number("t0", required=False) or 0.0
+    if t0 < 0:
+        raise ValueError(f"{p}: field 't0': {t0:g} s; the first frame's time counts from the start of "
+                         "the shear and must be >= 0 s")
+    return t0
+
+
+def _finite(value: int | float) -> bool:
+    try:
+        return math.isfinite(value)
+    except OverflowError:  # an int beyond any float, e.g. 10**400 written in the JSON
+        return False
+
+
+def _short(value: object) -> str:
+    """``repr`` cut to a readable length: a 400-digit number stays one line."""
+    text = repr(value)
+    return text if len(text) <= 40 else f"{text[:20]}...({len(text)} characters)"
 
 
 class _Fields:
@@ -105,8 +140,8 @@ class _Fields:
         value = self._get(key, required)
         if value is None:
             return None
-        if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
-            raise ValueError(f"{self.path}: field '{key}': expected a finite number, got {value!r}")
+        if isinstance(value, bool) or not isinstance(value, int | float) or not _finite(value):
+            raise ValueError(f"{self.path}: field '{key}': expected a finite number, got {_short(value)}")
         if (lo is not None and value <= lo) or (hi is not None and value >= hi):
             raise ValueError(f"{self.path}: field '{key}': {value} outside ({lo}, {hi if hi is not None else 'inf'})")
         return float(value)
@@ -115,8 +150,8 @@ class _Fields:
         value = self._get(key)
         try:
             a = np.asarray(value, dtype=float)
-        except (TypeError, ValueError):
-            raise ValueError(f"{self.path}: field '{key}': expected numbers, got {value!r}") from None
+        except (TypeError, ValueError, OverflowError):
+            raise ValueError(f"{self.path}: field '{key}': expected finite numbers, got {_short(value)}") from None
         if (shape is not None and a.shape != shape) or (shape is None and a.ndim != 1):
             want = "a list of numbers" if shape is None else f"shape {shape}"
             raise ValueError(f"{self.path}: field '{key}': expected {want}, got shape {a.shape}")

@@ -15,7 +15,7 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
-from granseg._io import atomic_path, check_writable
+from granseg._io import atomic_path, check_creatable, check_writable
 from granseg.constants import D_P
 from granseg.maps import moving_average, save_map
 from granseg.measure.camera import Undistorter
@@ -36,18 +36,23 @@ from granseg.measure.layers import (
     layer_counts,
     layer_index,
 )
-from granseg.measure.preview import write_previews
+from granseg.measure.preview import check_previews, write_previews
 from granseg.measure.quality import Quality, QualityWarning, assess
 from granseg.measure.sources import BadFrame, FrameDirectory, VideoFrames, open_frames
 from granseg.measure.wall import remove_wall_glare
 
-__all__ = ["Analysis", "BadFrameWarning", "Detected", "FrameSpheres", "analyze", "detect_frames", "write_detections"]
+__all__ = ["Analysis", "BadFrameWarning", "GreyFramesWarning", "Detected", "FrameSpheres", "analyze", "detect_frames", "write_detections"]
 
 log = logging.getLogger(__name__)
 
 
 class BadFrameWarning(UserWarning):
     """A frame could not be analysed; its row of the map is NaN."""
+
+
+class GreyFramesWarning(UserWarning):
+    """The frames carry no colour (a monochrome camera, or a grey export): the classes rest on
+    brightness, gloss and texture alone."""
 
 
 @dataclass
@@ -149,6 +154,8 @@ def analyze(
     """
     if isinstance(smooth, bool) or not isinstance(smooth, int | np.integer) or smooth < 1 or smooth % 2 == 0:
         raise ValueError(f"smooth: expected an odd number of frames >= 1 (1 = none), got {smooth!r}")
+    _check_count("workers", workers, 1, allow_none=True)
+    _check_count("preview_count", preview_count, 1)
     source, exp_path = open_frames(path)
     exp = load_experiment(exp_path)
     fps = _frame_rate(exp, source)
@@ -156,11 +163,14 @@ def analyze(
         smooth = frames_for_seconds(smooth_seconds, fps)
     out_path = map_path(out, exp.name, exp_path.parent)
     if save:
+        check_creatable(out_path.parent)
         out_path.parent.mkdir(parents=True, exist_ok=True)
         check_writable(out_path, force)
     if detections is not None:
         check_writable(detections, force)
     keep = _preview_indices(len(source), preview_count if preview is not None else 2)
+    if preview is not None:
+        check_previews(Path(preview), [source.names[i] for i in sorted(keep) if i < len(source.names)], force)
     spheres, crops, bad, names = _detect_all(source, exp, workers, progress, keep)
     classes = _classify(spheres, exp, crops)
     result = _assemble(spheres, exp, fps, smooth, names, bad)
@@ -204,11 +214,22 @@ def detect_frames(path: str | os.PathLike, *, workers: int | None = None, progre
     """Find the spheres of every frame of ``path`` (frames directory or video with
     ``experiment.json``), as :func:`analyze` does, without telling the two kinds apart:
     what a velocity measurement needs (:mod:`granseg.velocity`)."""
+    _check_count("workers", workers, 1, allow_none=True)
     source, exp_path = open_frames(path)
     exp = load_experiment(exp_path)
     fps = _frame_rate(exp, source)
     spheres, _, bad, names = _detect_all(source, exp, workers, progress, set())
     return Detected(exp, fps, spheres, names, bad)
+
+
+def _check_count(name: str, value: Any, least: int, allow_none: bool = False) -> None:
+    """A whole-number argument (workers, preview_count) that must be >= ``least``; the CLI's
+    --workers/--preview-count arrive here as well."""
+    if value is None and allow_none:
+        return
+    if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < least:
+        cli = "--" + name.replace("_", "-")
+        raise ValueError(f"{name} (CLI {cli}): expected a whole number >= {least}, got {value!r}")
 
 
 def frames_for_seconds(seconds: float, fps: float) -> int:
@@ -301,8 +322,13 @@ def _in_thread(source, worker, i: int, image: np.ndarray | None, keep_crop: bool
 
 def _detect_all(source, exp, workers, progress, keep):
     n_workers = max(1, workers or os.cpu_count() or 1)
-    first = _first_image(source)
-    worker = _FrameWorker(exp, (first.shape[1], first.shape[0]))
+    first_index, first = _first_image(source)
+    _warn_if_grey(first, source, first_index)
+    try:
+        worker = _FrameWorker(exp, (first.shape[1], first.shape[0]))
+    except ValueError:
+        _check_same_size(source, first_index, first)  # a stray first frame, not the window, is to blame
+        raise
     worker.learn(first)
     results: dict[int, Any] = {}
     crops: dict[int, np.ndarray] = {}
@@ -350,19 +376,48 @@ def _detect_all(source, exp, workers, progress, keep):
     return spheres, crops, bad, names
 
 
-def _first_image(source) -> np.ndarray:
-    """The first decodable frame (to size the undistortion tables)."""
+def _first_image(source) -> tuple[int, np.ndarray]:
+    """The first decodable frame and its index (to size the undistortion tables)."""
     if isinstance(source, VideoFrames):
-        for _, img in source.frames():
-            return img
+        for i, img in source.frames():
+            return i, img
         raise ValueError(f"{source.path}: video holds no readable frame (empty or truncated)")
     problems = []
     for i in range(len(source)):
         try:
-            return source.read(i)
+            return i, source.read(i)
         except BadFrame as exc:
             problems.append(str(exc))
     raise ValueError(f"{source.directory}: no readable frame ({problems[0]})")
+
+
+def _check_same_size(source, first_index: int, first: np.ndarray) -> None:
+    """Raise naming the first frame when the next readable frame has another size: then the
+    window was measured on the others and the first frame is the odd one out."""
+    if isinstance(source, VideoFrames):
+        return  # a video's frames share one size
+    for i in range(first_index + 1, len(source)):
+        try:
+            other = source.read(i)
+        except BadFrame:
+            continue
+        if other.shape[:2] != first.shape[:2]:
+            raise ValueError(f"{source.files[first_index]}: the first frame is {first.shape[1]} x {first.shape[0]} px "
+                             f"but {source.names[i]} is {other.shape[1]} x {other.shape[0]} px; every frame of a "
+                             "recording must have one size (remove or replace the odd frame)")
+        return
+
+
+def _warn_if_grey(image: np.ndarray, source, index: int) -> None:
+    """Say so when the frames carry no colour: the two kinds are then told apart by brightness,
+    gloss and texture alone, which fails for two materials of one brightness."""
+    grey = image.ndim == 2 or (image.shape[2] >= 3 and np.array_equal(image[..., 0], image[..., 1])
+                               and np.array_equal(image[..., 1], image[..., 2]))
+    if grey:
+        name = source.names[index] if index < len(source.names) else f"frame {index}"
+        warnings.warn(f"{name}: the frames are greyscale (no colour): heavy and light spheres are told apart "
+                      "by brightness, gloss and texture only; check the quality report and the preview",
+                      GreyFramesWarning, stacklevel=3)
 
 
 def _bgr(image: np.ndarray) -> np.ndarray:

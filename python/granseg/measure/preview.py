@@ -12,7 +12,7 @@ from granseg._io import atomic_path
 from granseg.measure.classify import AMBIGUOUS
 from granseg.measure.layers import N_LAYERS
 
-__all__ = ["draw_preview", "write_previews"]
+__all__ = ["check_previews", "draw_preview", "preview_path", "write_previews"]
 
 HEAVY_BGR = (40, 110, 255)  # orange
 LIGHT_BGR = (255, 200, 40)  # sky blue
@@ -20,6 +20,22 @@ AMBIGUOUS_BGR = (220, 40, 220)  # magenta: p_heavy between the classes
 FAIL_BGR = (20, 20, 200)
 PANEL_PX = 230
 HEADER_PX = 54  # band above the image for the frame's caption
+
+
+def preview_path(directory: Path, frame_name: str) -> Path:
+    """Where the preview of frame ``frame_name`` goes: ``preview_<frame stem>.png``."""
+    return directory / f"preview_{Path(frame_name).stem.replace('#', '_')}.png"
+
+
+def check_previews(directory: Path, frame_names: list[str], force: bool) -> None:
+    """Check, before the frames are analysed, that the previews of ``frame_names`` can be written
+    into ``directory`` (a folder, or one that can be made) without overwriting any unless ``force``."""
+    from granseg._io import check_creatable, check_output_dir
+
+    if not directory.exists():
+        check_creatable(directory)  # made later, with its parents
+        return
+    check_output_dir(directory, [preview_path(directory, n).name for n in frame_names], force)
 
 
 def write_previews(directory: Path, result: Any, crops: dict[int, np.ndarray], force: bool) -> list[Path]:
@@ -30,9 +46,8 @@ def write_previews(directory: Path, result: Any, crops: dict[int, np.ndarray], f
         spheres = result.spheres[i]
         if spheres is None:
             continue
-        name = Path(result.frame_names[i]).stem.replace("#", "_")
         img = draw_preview(crops[i], result, i)
-        path = directory / f"preview_{name}.png"
+        path = preview_path(directory, result.frame_names[i])
         with atomic_path(path, force=force) as tmp:
             if not cv2.imwrite(str(tmp), img):
                 raise OSError(f"{path}: could not write preview image")

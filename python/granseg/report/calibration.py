@@ -32,7 +32,7 @@ from typing import Any
 import numpy as np
 from matplotlib.figure import Figure
 
-from granseg._io import atomic_write, prepare_output_dir, save_json
+from granseg._io import atomic_write_text, prepare_output_dir, save_json
 from granseg.calibration import CalibrationWarning, calibrate
 from granseg.fit import fit_campaign
 from granseg.maps import load_campaign, views_of
@@ -106,7 +106,7 @@ def build_report(
     data["warnings"] = notes
     save_json(out / "report.json", data, force=force)
     text = render(data, out)
-    atomic_write(out / "index.html", lambda tmp: tmp.write_text(text, encoding="utf-8"), force=force)
+    atomic_write_text(out / "index.html", text, force=force)
     return out / "index.html"
 
 

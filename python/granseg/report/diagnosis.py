@@ -25,7 +25,7 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from granseg._io import atomic_write, check_writable, prepare_output_dir, save_json
+from granseg._io import atomic_write_text, check_writable, prepare_output_dir, save_json
 from granseg.diagnosis.selection import GAIN_THRESHOLD
 from granseg.plot.diagnosis import FIGURES
 from granseg.report.html import (
@@ -94,7 +94,7 @@ def _write(d: Diagnosis, out: str | os.PathLike, force: bool, prov: Mapping[str,
     figs = save_figures([(n, c, f) for n, c, f in drawn if f is not None], out, force=force)
     save_json(out / "diagnosis.json", result, force=force)
     text = render(result, figs, out)
-    return atomic_write(out / "index.html", lambda tmp: tmp.write_text(text, encoding="utf-8"), force=force)
+    return atomic_write_text(out / "index.html", text, force=force)
 
 
 def write_report(d: Diagnosis, out: str | os.PathLike, *, force: bool = False, command: str | None = None,
