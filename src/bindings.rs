@@ -239,6 +239,38 @@ fn simulate<'py>(
     ))
 }
 
+/// One run reduced to its layer map as it is stepped, without the full field
+/// (issue 15): returns (layers (n_t, n_layers), stats). What every comparison
+/// with a camera's map needs, at a fraction of the output's size.
+#[pyfunction]
+#[pyo3(signature = (params, t, n_cells, rtol, atol, n_layers=15))]
+fn simulate_layers<'py>(
+    py: Python<'py>,
+    params: HashMap<String, f64>,
+    t: PyReadonlyArray1<'py, f64>,
+    n_cells: usize,
+    rtol: f64,
+    atol: f64,
+    n_layers: usize,
+) -> PyResult<(Bound<'py, PyArray2<f64>>, Bound<'py, PyDict>)> {
+    let p = params_from(&params).map_err(to_py_err)?;
+    let n_t = t.len();
+    limits::check_output_times("t", n_t).map_err(to_py_err)?;
+    let spec = RunSpec {
+        params: p,
+        t_out: Arc::new(t.as_array().to_vec()),
+        measured: None,
+        n_layers,
+    };
+    let tol = tolerances(rtol, atol);
+    let r = detached(py, move |stop| {
+        crate::sweep::run_guarded_stoppable(&spec, n_cells, tol, stop)
+    })?;
+    let layers = Array2::from_shape_vec((n_t, r.n_layers), r.layers)
+        .map_err(|e| PyRuntimeError::new_err(e.to_string()))?;
+    Ok((layers.into_pyarray(py), stats_dict(py, &r.stats)?))
+}
+
 /// The steady profile (cell averages) on n_cells cells: (z [m], c).
 #[pyfunction]
 #[pyo3(signature = (params, n_cells, sub_steps=16))]
@@ -425,7 +457,7 @@ mod _core {
     #[pymodule_export]
     use super::{
         _panic_for_testing, call_limits, default_tolerances, defaults, derived, law_keys,
-        layer_means, materials, moving_average, simulate, steady_state, sweep, validate,
-        velocity_profile, SolverError,
+        layer_means, materials, moving_average, simulate, simulate_layers, steady_state, sweep,
+        validate, velocity_profile, SolverError,
     };
 }

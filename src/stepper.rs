@@ -26,6 +26,7 @@ use std::sync::atomic::AtomicBool;
 
 use crate::error::SolveError;
 use crate::flux::Operator;
+use crate::layers::LayerMap;
 use crate::limits;
 use crate::model::initial_condition;
 use crate::params::Params;
@@ -160,6 +161,53 @@ impl NewtonMatrix for Tridiagonal {
 pub trait Output {
     fn profile(&mut self, k: usize) -> &mut [f64];
     fn done(&mut self, _k: usize) {}
+    /// An output that keeps only layer means names its layer map here; the
+    /// stepper then reduces each step's interpolant once and writes the layer
+    /// values of every output time in that step to `layer_row(k)` directly.
+    fn layer_map(&self) -> Option<&LayerMap> {
+        None
+    }
+    fn layer_row(&mut self, _k: usize) -> &mut [f64] {
+        unreachable!("layer_row without a layer_map")
+    }
+}
+
+/// Layer means (n_t * n_layers, row-major) at the output times, without the
+/// field: what every comparison with a camera's map needs.
+pub struct LayerOutput {
+    map: LayerMap,
+    /// One profile, for the steps whose interpolant may leave [0, 1] (those
+    /// are evaluated cell by cell, clipped, then reduced).
+    buf: Vec<f64>,
+    pub layers: Vec<f64>,
+}
+
+impl LayerOutput {
+    pub fn new(map: LayerMap, n_cells: usize, layers: Vec<f64>) -> Result<Self, SolveError> {
+        Ok(LayerOutput {
+            map,
+            buf: limits::zeroed(n_cells, "a profile")?,
+            layers,
+        })
+    }
+}
+
+impl Output for LayerOutput {
+    fn profile(&mut self, _k: usize) -> &mut [f64] {
+        &mut self.buf
+    }
+    fn done(&mut self, k: usize) {
+        let n = self.map.n_layers();
+        self.map
+            .apply(&self.buf, &mut self.layers[k * n..(k + 1) * n]);
+    }
+    fn layer_map(&self) -> Option<&LayerMap> {
+        Some(&self.map)
+    }
+    fn layer_row(&mut self, k: usize) -> &mut [f64] {
+        let n = self.map.n_layers();
+        &mut self.layers[k * n..(k + 1) * n]
+    }
 }
 
 /// Adapter: hand each profile to a closure (used for layer means).
@@ -288,6 +336,8 @@ struct Work<M: NewtonMatrix> {
     y_prev: Vec<f64>,
     h_prev: Option<f64>,
     stage1: Vec<f64>,
+    /// layer means of the interpolant's coefficients (4 x n_layers), for layer outputs
+    layer_coef: Vec<f64>,
     matrix: M,
     eta: f64,
 }
@@ -308,6 +358,7 @@ impl<M: NewtonMatrix> Work<M> {
             y_prev: z(),
             h_prev: None,
             stage1: z(),
+            layer_coef: Vec::new(),
             matrix,
             eta: 1.0,
         }
@@ -502,6 +553,22 @@ fn hermite_coefficients(
     }
 }
 
+/// Whether the step's cubic interpolant stays in [0, 1] in every cell for all
+/// theta in [0, 1]: its Bernstein control points do (the curve lies in their
+/// convex hull). Conservative: a step that fails is evaluated cell by cell.
+fn stays_in_bounds(y0: &[f64], d: &[Vec<f64>; 3]) -> bool {
+    let mut inside = true;
+    for i in 0..y0.len() {
+        let b1 = y0[i] + d[0][i] / 3.0;
+        let b2 = y0[i] + (2.0 * d[0][i] + d[1][i]) / 3.0;
+        let b3 = y0[i] + d[0][i] + d[1][i] + d[2][i];
+        inside &= (0.0..=1.0).contains(&b1)
+            & (0.0..=1.0).contains(&b2)
+            & (-1e-12..=1.0 + 1e-12).contains(&b3);
+    }
+    inside
+}
+
 /// Evaluate the interpolant into `out`; returns whether it stayed in [0, 1].
 #[inline]
 fn hermite_eval(out: &mut [f64], y0: &[f64], d: &[Vec<f64>; 3], theta: f64) -> bool {
@@ -651,6 +718,40 @@ pub fn integrate_with_stop<M: NewtonMatrix>(
                     op.rhs(t_new, &w.y_new, &mut w.k[STAGES - 1]);
                 }
                 hermite_coefficients(&mut w.herm, &w.y, &w.k[0], &w.y_new, &w.k[STAGES - 1], h);
+                // Layer outputs: the interpolant is linear in its coefficients, so its layer
+                // means are the interpolant of the coefficients' layer means, made once per
+                // step. Only when no cell can leave [0, 1] within the step (nothing to clip).
+                let reduced = match out.layer_map() {
+                    Some(map)
+                        if next < t_out.len()
+                            && t_out[next] <= t_new
+                            && stays_in_bounds(&w.y, &w.herm) =>
+                    {
+                        let n = map.n_layers();
+                        w.layer_coef.resize(4 * n, 0.0);
+                        let (c0, rest) = w.layer_coef.split_at_mut(n);
+                        let (c1, rest) = rest.split_at_mut(n);
+                        let (c2, c3) = rest.split_at_mut(n);
+                        map.apply(&w.y, c0);
+                        map.apply(&w.herm[0], c1);
+                        map.apply(&w.herm[1], c2);
+                        map.apply(&w.herm[2], c3);
+                        true
+                    }
+                    _ => false,
+                };
+                while reduced && next < t_out.len() && t_out[next] <= t_new {
+                    let theta = ((t_out[next] - t) / h).clamp(0.0, 1.0);
+                    let row = out.layer_row(next);
+                    let n = row.len();
+                    let c = &w.layer_coef;
+                    for (l, v) in row.iter_mut().enumerate() {
+                        let x = c[l]
+                            + theta * (c[n + l] + theta * (c[2 * n + l] + theta * c[3 * n + l]));
+                        *v = x.clamp(0.0, 1.0); // rounding only: the cells stay in [0, 1]
+                    }
+                    next += 1;
+                }
                 while next < t_out.len() && t_out[next] <= t_new {
                     let theta = ((t_out[next] - t) / h).clamp(0.0, 1.0);
                     let buf = out.profile(next);

@@ -12,7 +12,7 @@ use crate::error::SolveError;
 use crate::layers::{self, LayerMap};
 use crate::limits;
 use crate::params::Params;
-use crate::stepper::{self, Stats, Tolerances};
+use crate::stepper::{self, Stats, Tolerances, Tridiagonal};
 
 /// A measured map to compare a run with: (n_t, n_layers) row-major, NaN =
 /// no reading, at the run's output times, with the smoothing it records.
@@ -97,18 +97,21 @@ pub fn run_one_stoppable(
     }
     spec.params.validate()?;
     stepper::validate_run(n_cells, &spec.t_out, &tol)?;
-    let lm = LayerMap::new(n_cells, n_layers);
-    let mut out = limits::zeroed(len, "the layer map")?;
-    let stats = stepper::integrate_stoppable(
+    let mut output = stepper::LayerOutput::new(
+        LayerMap::new(n_cells, n_layers),
+        n_cells,
+        limits::zeroed(len, "the layer map")?,
+    )?;
+    let stats = stepper::integrate_with_stop(
         &spec.params,
         n_cells,
         &spec.t_out,
         tol,
-        |k, prof| {
-            lm.apply(prof, &mut out[k * n_layers..(k + 1) * n_layers]);
-        },
+        Tridiagonal::new(n_cells),
+        &mut output,
         stop,
     )?;
+    let out = output.layers;
     let (layers, rmsd) = match &spec.measured {
         Some(m) => {
             let smooth = layers::moving_average(&out, n_t, n_layers, m.smoothing_frames);
@@ -247,6 +250,42 @@ pub fn sweep_stoppable(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn layers_made_while_stepping_equal_the_fields_layers() {
+        // the per-step reduction of the interpolant (issue 15) against the field reduced
+        // output by output, in a gentle case and in one that clips (sharp fronts)
+        for (rho_h, n_cells) in [(2450.0, 180), (12.0 * 946.0, 30)] {
+            let params = Params {
+                rho_h,
+                ..Params::default()
+            };
+            let t: Vec<f64> = (0..=900).map(|i| i as f64 * 4.0).collect();
+            let tol = Tolerances {
+                rtol: 3e-4,
+                atol: 3e-5,
+            };
+            let spec = RunSpec {
+                params,
+                t_out: Arc::new(t.clone()),
+                measured: None,
+                n_layers: N_LAYERS,
+            };
+            let lean = run_one(&spec, n_cells, tol).unwrap();
+            let (field, stats) = stepper::simulate(&params, n_cells, &t, tol).unwrap();
+            assert_eq!(lean.stats.steps, stats.steps);
+            let map = LayerMap::new(n_cells, N_LAYERS);
+            let mut row = vec![0.0; N_LAYERS];
+            for (k, prof) in field.chunks_exact(n_cells).enumerate() {
+                map.apply(prof, &mut row);
+                for (l, v) in row.iter().enumerate() {
+                    let got = lean.layers[k * N_LAYERS + l];
+                    assert!((got - v).abs() < 1e-14, "t[{k}] layer {l}: {got} vs {v}");
+                    assert!((0.0..=1.0).contains(&got));
+                }
+            }
+        }
+    }
 
     #[test]
     fn sweep_matches_single_runs_and_rmsd_is_zero_against_itself() {

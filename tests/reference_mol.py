@@ -59,8 +59,8 @@ class Reference:
         n = self.n
         return diags([np.ones(n - 1), np.ones(n), np.ones(n - 1)], [-1, 0, 1], format="csc")
 
-    def solve(self, t, rtol=1e-8, atol=1e-10):
-        sol = solve_ivp(self.rhs, (0, t[-1]), self.initial(), method="BDF", t_eval=t,
+    def solve(self, t, rtol=1e-8, atol=1e-10, method="BDF"):
+        sol = solve_ivp(self.rhs, (0, t[-1]), self.initial(), method=method, t_eval=t,
                         rtol=rtol, atol=atol, jac_sparsity=self.sparsity())
         if not sol.success:
             raise RuntimeError(sol.message)

@@ -56,7 +56,7 @@ def test_the_cell_matters(cell_campaign):
 
 
 def test_simulate_and_sweep_give_any_layer_count():
-    sol = granseg.simulate(t=[0.0, 600.0], n_cells=N_CELLS, H=0.066)
+    sol = granseg.simulate(t=[0.0, 600.0], n_cells=N_CELLS, H=0.066, n_layers=1)
     res = granseg.sweep({"k": [0.6, 0.8]}, base={"H": 0.066}, t=[0.0, 600.0], n_layers=11, n_cells=N_CELLS)
     assert res.layers.shape == (2, 2, 11)
     np.testing.assert_allclose(res.layers[0].mean(axis=1), sol.layers(1)[:, 0], atol=1e-12)

@@ -236,7 +236,7 @@ def test_simulation_figure():
     from granseg.fit import fit_tanh
     from granseg.model import simulate
 
-    sol = simulate(rho_h=2450.0, rho_l=946.0, c0=0.5, M_w=1.093, t=np.linspace(0, 900, 61), n_cells=40)
+    sol = simulate(rho_h=2450.0, rho_l=946.0, c0=0.5, M_w=1.093, t=np.linspace(0, 900, 61), n_cells=40, field=True)
     layers = sol.layers()
     check_figure(plot.simulation(sol, fit=fit_tanh(sol.t, layers[:, 0]), title="one run"), "simulation")
 

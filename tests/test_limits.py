@@ -37,8 +37,11 @@ def test_limits_come_from_the_core():
 def test_simulate_with_two_million_cells_is_refused_naming_it_and_the_bytes():
     t0 = time.perf_counter()
     with pytest.raises(ValueError, match=r"n_cells = 2000000.*28816000000 bytes"):
-        granseg.simulate(t=np.arange(0.0, 3601.0, 2.0), n_cells=2_000_000)
+        granseg.simulate(t=np.arange(0.0, 3601.0, 2.0), n_cells=2_000_000, field=True)
     assert time.perf_counter() - t0 < 2.0
+    # without the field (the default) the layer map is small, and the cell count is what is refused
+    with pytest.raises(ValueError, match=r"n_cells = 2000000 is out of range: must be <= 100000"):
+        granseg.simulate(t=np.arange(0.0, 3601.0, 2.0), n_cells=2_000_000)
     # the core on its own (no Python check in front of it) refuses it too
     with pytest.raises(ValueError, match=r"len\(t\) = 1801 x n_cells = 2000000.*28816000000 bytes"):
         _core.simulate(model.defaults(), np.arange(0.0, 3601.0, 2.0), 2_000_000, 3e-5, 3e-6)
@@ -125,7 +128,7 @@ def test_sweep_refuses_layer_maps_beyond_the_byte_ceiling():
 
 
 def test_layers_refuses_a_count_below_one_naming_it():
-    sol = granseg.simulate(t=[0.0, 60.0], n_cells=30)
+    sol = granseg.simulate(t=[0.0, 60.0], n_cells=30, field=True)
     for bad in (-3, 0, -3.0, 2.5, float("nan"), True, "5", 10**6):
         with pytest.raises(ValueError, match="n_layers"):
             sol.layers(bad)

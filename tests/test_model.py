@@ -29,7 +29,7 @@ physical = dict(
 @given(**physical)
 def test_mass_is_conserved_and_c_stays_in_bounds(delta_r, c0, k, d):
     sol = granseg.simulate(rho_h=delta_r * RHO_L, rho_l=RHO_L, c0=c0, k=k, delta_over_H=d,
-                           t=[0.0, 30.0, 300.0, 3600.0], n_cells=60)
+                           t=[0.0, 30.0, 300.0, 3600.0], n_cells=60, field=True)
     mean = sol.c.mean(axis=1)
     assert np.max(np.abs(mean - mean[0]) / mean[0]) <= 1e-12
     assert abs(mean[0] - c0) < 1e-12
@@ -39,7 +39,7 @@ def test_mass_is_conserved_and_c_stays_in_bounds(delta_r, c0, k, d):
 @given(c0=floats(0.05, 0.95), k=floats(0.2, 2.0), d=floats(0.15, 0.6))
 def test_equal_densities_tend_to_the_mixed_state(c0, k, d):
     sol = granseg.simulate(rho_h=2450, rho_l=2450, c0=c0, k=k, delta_over_H=d,
-                           t=[0.0, 1e7], n_cells=45)
+                           t=[0.0, 1e7], n_cells=45, field=True)
     assert np.max(np.abs(sol.c[-1] - c0)) < 1e-3
     z, c = granseg.steady_state(rho_h=2450, rho_l=2450, c0=c0, k=k, delta_over_H=d, n_cells=45)
     np.testing.assert_allclose(c, c0, atol=1e-12)
@@ -63,8 +63,8 @@ def test_sharp_fronts_do_not_ring(params):
     # a scheme that rings adds total variation on a coarse grid; the limited,
     # species-upwinded flux must not exceed the variation of a fine solution
     t = np.linspace(0, 600, 61)
-    coarse = granseg.simulate(**params, t=t, n_cells=30)
-    fine = granseg.simulate(**params, t=t, n_cells=480, rtol=1e-6, atol=1e-8)
+    coarse = granseg.simulate(**params, t=t, n_cells=30, field=True)
+    fine = granseg.simulate(**params, t=t, n_cells=480, rtol=1e-6, atol=1e-8, field=True)
 
     def tv(c):
         return np.abs(np.diff(c, axis=1)).sum(axis=1)
@@ -270,7 +270,7 @@ law_tables = st.lists(floats(-2.0, 2.0), min_size=17, max_size=17)
 def test_law_corrections_keep_mass_and_bounds(delta_r, c0, table, law):
     knots = {f"{law}_{i}": v for i, v in enumerate(table)}
     sol = granseg.simulate(rho_h=delta_r * RHO_L, rho_l=RHO_L, c0=c0, t=[0.0, 30.0, 300.0, 1800.0],
-                           n_cells=60, law_time=1800.0, **knots)
+                           n_cells=60, law_time=1800.0, field=True, **knots)
     mean = sol.c.mean(axis=1)
     assert np.max(np.abs(mean - mean[0]) / mean[0]) <= 1e-12
     assert sol.c.min() >= 0.0 and sol.c.max() <= 1.0
@@ -294,3 +294,23 @@ def test_law_corrections_are_the_baseline_at_zero_and_act_where_they_say():
         granseg.simulate(t=t, law_time=-1.0)
     with pytest.raises(ValueError, match="law"):
         granseg.steady_state(law_diff_z_2=0.5)
+
+
+def test_the_layer_map_made_while_stepping_is_the_fields_layer_map():
+    """Issue 15: simulate keeps only the layer map unless asked for the field; the two agree to
+    rounding (the core reduces each step's interpolant once), and the solver takes the same steps."""
+    t = np.arange(0.0, 1801.0, 30.0)
+    lean = granseg.simulate(rho_h=7800, rho_l=946, c0=0.3, t=t, n_cells=90)
+    full = granseg.simulate(rho_h=7800, rho_l=946, c0=0.3, t=t, n_cells=90, field=True)
+    assert lean.c is None and full.c.shape == (t.size, 90)
+    np.testing.assert_allclose(lean.layers(), full.layers(), rtol=0, atol=1e-14)
+    np.testing.assert_allclose(lean.depth_mean, full.depth_mean, atol=1e-14)
+    assert lean.stats == full.stats
+    eleven = granseg.simulate(rho_h=7800, rho_l=946, c0=0.3, t=t, n_cells=90, n_layers=11)
+    np.testing.assert_allclose(eleven.layers(11), full.layers(11), atol=1e-15)
+    with pytest.raises(ValueError, match="field=True"):
+        lean.layers(11)
+    with pytest.raises(ValueError, match="field"):
+        granseg.simulate(t=t, field="yes")
+    lean.layers()[0, 0] = -1.0  # a copy: the run's own map is not changed through it
+    assert lean.layers()[0, 0] >= 0.0

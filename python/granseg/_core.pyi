@@ -76,6 +76,17 @@ def velocity_profile(
 
     ValueError unless every z lies in [0, H]."""
 
+def simulate_layers(
+    params: dict[str, float],
+    t: npt.NDArray[np.float64],
+    n_cells: int,
+    rtol: float,
+    atol: float,
+    n_layers: int = 15,
+) -> tuple[npt.NDArray[np.float64], SolverStats]:
+    """One run reduced to its layer means as it is stepped: (layers (n_t, n_layers), solver
+    stats), the full field never built. GIL released; the limits and Ctrl-C as ``simulate``."""
+
 def simulate(
     params: dict[str, float],
     t: npt.NDArray[np.float64],

@@ -152,7 +152,8 @@ class Solution:
     ----------
     t : (n_t,) output times, s
     z : (n_cells,) cell centres, m above the bottom wall
-    c : (n_t, n_cells) heavy share of the solids (cell averages), in [0, 1]
+    c : (n_t, n_cells) heavy share of the solids (cell averages), in [0, 1]; None unless the
+        run was asked for its field (``simulate(..., field=True)``)
     params : every model parameter used (SI units)
     stats : solver counters (steps, rejected, newton_iters, rhs_evals, ...:
         ints; max_clip, the largest amount of c clipped from one cell, a float)
@@ -160,23 +161,39 @@ class Solution:
 
     t: np.ndarray
     z: np.ndarray
-    c: np.ndarray
+    c: np.ndarray | None
     params: dict[str, float]
     stats: dict[str, float] = field(default_factory=dict)
+    #: layer maps already made, by number of layers (the run's own, reduced as it was stepped)
+    layer_maps: dict[int, np.ndarray] = field(default_factory=dict, repr=False, compare=False)
 
     def layers(self, n_layers: int = N_LAYERS) -> np.ndarray:
         """Mean of c over each of ``n_layers`` equal layers (D_p high for 15):
-        (n_t, n_layers), layer 0 at the bottom, as a camera would see it."""
+        (n_t, n_layers), layer 0 at the bottom, as a camera would see it.
+
+        The run's own layer count (``simulate(n_layers=)``, 15 by default) is
+        a lookup; another count needs the field (``field=True``)."""
         whole = (not isinstance(n_layers, bool) and isinstance(n_layers, int | float | np.integer | np.floating)
                  and math.isfinite(n_layers) and n_layers == int(n_layers))  # 15.0 is 15; 2.5 is refused
         if not whole or not 1 <= n_layers <= MAX_CELLS:
             raise ValueError(f"n_layers = {n_layers!r} must be a whole number in 1..{MAX_CELLS}")
-        return np.asarray(_core.layer_means(np.ascontiguousarray(self.c), int(n_layers)))
+        n_layers = int(n_layers)
+        if n_layers not in self.layer_maps:
+            if self.c is None:
+                have = ", ".join(str(n) for n in sorted(self.layer_maps)) or "none"
+                raise ValueError(f"n_layers = {n_layers}: this run kept the layer maps of {have} layers only; "
+                                 f"simulate(..., n_layers={n_layers}) gives these, field=True any")
+            self.layer_maps[n_layers] = np.asarray(_core.layer_means(np.ascontiguousarray(self.c), n_layers))
+        return self.layer_maps[n_layers].copy()
 
     @property
     def depth_mean(self) -> np.ndarray:
-        """Depth-mean of c at each output time (conserved: equals c0)."""
-        return self.c.mean(axis=1)
+        """Depth-mean of c at each output time (conserved: equals c0); equal layers average to
+        the same, so it is known without the field."""
+        if self.c is not None:
+            return self.c.mean(axis=1)
+        n = min(self.layer_maps)
+        return self.layer_maps[n].mean(axis=1)
 
 
 def simulate(
@@ -185,6 +202,8 @@ def simulate(
     n_cells: int = N_CELLS,
     rtol: float | None = None,
     atol: float | None = None,
+    field: bool = False,
+    n_layers: int = N_LAYERS,
     **params: float,
 ) -> Solution:
     """Solve the segregation-diffusion model from the stratified initial state.
@@ -195,6 +214,11 @@ def simulate(
     n_cells : finite-volume cells over the bed height (>= 15)
     rtol, atol : step-size control tolerances (defaults meet 1e-3 on the
         15-layer maps)
+    field : also keep the full field ``c`` (n_t, n_cells). By default only the
+        ``n_layers`` layer map is kept, reduced in the core as the run is
+        stepped: what every comparison with a camera's map needs, n_cells /
+        n_layers times smaller.
+    n_layers : layers of the map kept (15, the paper's window, by default).
     **params : any model parameter of docs/model.md by name, e.g. ``rho_h=2450``
         (kg/m^3), ``rho_l=946``, ``c0=0.5``, ``k=0.7``, ``delta_over_H=0.18``.
 
@@ -203,14 +227,26 @@ def simulate(
     >>> sol = simulate(rho_h=2450, rho_l=946, c0=0.5, t=np.arange(0, 3601, 2.0))
     >>> sol.layers().shape
     (1801, 15)
+    >>> simulate(rho_h=2450, rho_l=946, c0=0.5, t=[0.0, 60.0], field=True).c.shape
+    (2, 180)
     """
     p = _params(params)
     n_cells, rtol, atol = _solver_options(n_cells, rtol, atol)
+    if not isinstance(field, bool | np.bool_):
+        raise ValueError(f"field = {field!r} must be True or False")
+    whole = not isinstance(n_layers, bool) and isinstance(n_layers, int | np.integer)
+    if not whole or not 1 <= n_layers <= MAX_CELLS:
+        raise ValueError(f"n_layers = {n_layers!r} must be a whole number in 1..{MAX_CELLS}")
     times = _times(t, n_cells=n_cells)
+    z = (np.arange(n_cells) + 0.5) * (p["H"] / n_cells)
     # the core refuses an output above MAX_BYTES (naming len(t), n_cells and the bytes), more
     # than MAX_CELLS cells, and stops at Ctrl-C (KeyboardInterrupt)
-    z, c, stats = _call(_core.simulate, p, times, n_cells, rtol, atol)
-    return Solution(t=times, z=np.asarray(z), c=np.asarray(c), params=p, stats=dict(stats))
+    if field:
+        z, c, stats = _call(_core.simulate, p, times, n_cells, rtol, atol)
+        return Solution(t=times, z=np.asarray(z), c=np.asarray(c), params=p, stats=dict(stats))
+    layer_map, stats = _call(_core.simulate_layers, p, times, n_cells, rtol, atol, int(n_layers))
+    return Solution(t=times, z=z, c=None, params=p, stats=dict(stats),
+                    layer_maps={int(n_layers): np.asarray(layer_map)})
 
 
 def steady_state(*, n_cells: int = N_CELLS, **params: float) -> tuple[np.ndarray, np.ndarray]:

@@ -120,7 +120,7 @@ def run(args: argparse.Namespace) -> int:
         granseg._io.check_writable(p, args.force)
 
     start = time.perf_counter()
-    sol = granseg.simulate(t=t, n_cells=args.n_cells, rtol=args.rtol, atol=args.atol, **params)
+    sol = granseg.simulate(t=t, n_cells=args.n_cells, rtol=args.rtol, atol=args.atol, field=True, **params)
     elapsed = time.perf_counter() - start
     steady = granseg.steady_state(n_cells=args.n_cells, **params)
     layers = sol.layers(like.n_layers if like is not None else 15)

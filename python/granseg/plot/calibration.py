@@ -360,6 +360,8 @@ def simulation(sol: Any, *, steady: tuple[np.ndarray, np.ndarray] | None = None,
     direct steady-state profile (z [m], c [-]); ``fit`` the tanh fit of the
     bottom layer, drawn dashed.
     """
+    if sol.c is None:
+        raise ValueError("plot.simulation draws profiles in z: give it a run made with simulate(..., field=True)")
     H = sol.params["H"]
     layers = sol.layers()
     n_layers = layers.shape[1]

@@ -118,7 +118,7 @@ def _model_constants(cal: Any) -> dict[str, float]:
 
 
 def _initial_profile(m: Any, params: dict[str, Any], n_cells: int) -> tuple[np.ndarray, np.ndarray]:
-    sol = simulate(**{**params, **m.case()}, t=np.array([0.0]), n_cells=n_cells)
+    sol = simulate(**{**params, **m.case()}, t=np.array([0.0]), n_cells=n_cells, field=True)
     return np.asarray(sol.z), np.asarray(sol.c)[0]
 
 

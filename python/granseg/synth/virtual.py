@@ -310,7 +310,7 @@ def _cause(name: str) -> Effect:
 def _truth(params: Mapping[str, float], t: np.ndarray, shift: float, n_cells: int, n_layers: int) -> np.ndarray:
     """Bed layer means (n_t, n_layers) at plate times t [s] with segregation delayed by ``shift``."""
     request, index = shifted_times(t, shift)
-    return simulate(t=request, n_cells=n_cells, rtol=1e-5, atol=1e-7, **params).layers(n_layers)[index]
+    return simulate(t=request, n_cells=n_cells, rtol=1e-5, atol=1e-7, n_layers=n_layers, **params).layers(n_layers)[index]
 
 
 def _duration(params: Mapping[str, float], shift: float, n_cells: int) -> float:
