@@ -24,6 +24,7 @@ from granseg.plot.base import (
     H_LABEL,
     T_LABEL,
     edges,
+    literal,
     map_edges,
     new_figure,
     pm_text,
@@ -71,7 +72,7 @@ def map_comparison(measured: Any, model: np.ndarray, *, H: float, rmsd: float | 
                    alignment="left")
         fig.colorbar(m1, ax=axes[1:3], label=C_LABEL, shrink=0.9, pad=0.01)
         fig.colorbar(m3, ax=axes[3], label=r"measured $-$ model $\Delta c$ [-]", shrink=0.9, pad=0.01)
-        head = f"{measured.name}: {measured.heavy}/{measured.light}, " \
+        head = f"{literal(measured.name)}: {literal(measured.heavy)}/{literal(measured.light)}, " \
                rf"$\delta_R$ = {measured.delta_R:.2f}, $c_0$ = {measured.c0:.2f}"
         fig.suptitle(head + ("" if rmsd is None else f", RMSD = {rmsd:.3f}"), fontsize=9)
     return fig
@@ -133,7 +134,7 @@ def bottom_fits(maps: Sequence[Any], fits: Mapping[str, FitResult]) -> Figure:
                 t = np.asarray(m.t, dtype=float)
                 pick = _log_times(t, 50)
                 ax.plot(t[pick], np.asarray(m.bottom)[pick], "o", ms=2.2, alpha=0.5, color=color, mec="none")
-                label = m.name
+                label = literal(m.name)
                 if m.name in fits:
                     f = fits[m.name]
                     tt = np.geomspace(t[t > 0][0], t[-1], 300) if np.any(t > 0) else t
@@ -143,7 +144,7 @@ def bottom_fits(maps: Sequence[Any], fits: Mapping[str, FitResult]) -> Figure:
                     ax.plot([], [], "o", color=color, label=label + " (no fit)")
             ax.set_xscale("log")
             ax.set_ylim(-0.03, 1.03)
-            pairs = sorted({f"{m.heavy}/{m.light}" for m in group})
+            pairs = sorted({literal(f"{m.heavy}/{m.light}") for m in group})
             ax.set_title(rf"$\delta_R$ = {dR:.2f}: " + ", ".join(pairs), loc="left", fontsize=7.5)
             ax.tick_params(labelsize=7)
             ax.legend(loc="best", fontsize=6, handlelength=1.0, borderaxespad=0.2, labelspacing=0.2)
@@ -272,7 +273,7 @@ def _grid_ticks(vals: Sequence[float], lo: float, hi: float) -> list[float]:
 
 def _best_label(best: Mapping[str, float], err: Mapping[str, float], keys: list) -> str:
     names = {"k": "$k$", "delta_over_H": r"$\delta/H$"}
-    return "refined optimum $\\pm$ 1 s.e.:\n" + ", ".join(f"{names.get(k, k)} = {pm_text(float(best[k]), err[k])}" for k in keys)
+    return "refined optimum $\\pm$ 1 s.e.:\n" + ", ".join(f"{names.get(k, literal(k))} = {pm_text(float(best[k]), err[k])}" for k in keys)
 
 
 def _annotate_cells(ax: Any, xs: list, ys: list, table: np.ndarray) -> None:
@@ -299,7 +300,7 @@ _LABELS = {"k": "friction correction $k$ [-]", "delta_over_H": r"shear-band deca
 
 
 def _param_label(key: str) -> str:
-    return _LABELS.get(key, key)
+    return _LABELS.get(key, literal(key))
 
 
 def profiles(params: Mapping[str, float], *, deltas: Sequence[float] = (),
