@@ -40,13 +40,15 @@ def run(args: argparse.Namespace) -> int:
     import logging
 
     logging.getLogger("fontTools").setLevel(logging.WARNING)  # PDF font subsetting chatter
-    from granseg._io import check_writable
+    from granseg._io import check_output_dir, check_writable
     from granseg.diagnosis import diagnose
-    from granseg.report.diagnosis import write_outputs
+    from granseg.report.diagnosis import OUTPUTS, write_outputs
     from granseg.report.provenance import command_line
 
     if args.json is not None:
         check_writable(args.json, args.force)  # before the work, not after it
+    if args.report is not None:
+        check_output_dir(args.report, OUTPUTS, args.force)
     d = diagnose(args.campaign, force=args.force, causes=args.causes, n_cells=args.n_cells,
                  progress=not args.quiet, accept_flagged=args.accept_flagged, velocity=args.velocity)
     # the outputs carry the provenance, this command line included

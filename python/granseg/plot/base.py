@@ -93,10 +93,13 @@ def save_figure(fig: Figure, stem: str | os.PathLike, *, force: bool = False,
     paths = [stem.with_name(f"{stem.name}.{ext}") for ext in formats]
     for p in paths:
         check_writable(p, force)
+    # a figure laid out by hand (no layout engine: a page of maps) fills its canvas as made; trimming
+    # it would draw it twice
+    bbox = {} if fig.get_layout_engine() is not None else {"bbox_inches": None}
     with style():
         for p in paths:
             with atomic_path(p, force=force) as tmp:
-                fig.savefig(tmp, format=p.suffix[1:])
+                fig.savefig(tmp, format=p.suffix[1:], **bbox)
     return paths
 
 

@@ -8,6 +8,15 @@ figures and writes into ``OUT``::
     OUT/report.json     every number the page shows, machine-readable
     OUT/figures/*.png   the same figures as files, with a PDF beside each
 
+Each experiment's measured and model maps are one figure per experiment in a
+campaign of up to :data:`ONE_FIGURE_PER_EXPERIMENT_UP_TO` experiments, and
+pages of six experiments in a larger one (PNG only, :data:`PAGE_FORMATS`).
+The figures are drawn, saved and freed one at a time and the page is written
+piece by piece, so the memory a report needs does not grow with the
+campaign. Everything is written into a hidden
+``.OUT.*.partial`` folder and moved into place at the end: a report that fails
+leaves nothing behind (:func:`granseg._io.staged_output_dir`).
+
 The HTML is rendered from the JSON document (:func:`render`), so the two
 cannot disagree. The page opens with the provenance (input, granseg version,
 UTC date, command line) and, for data not measured in a laboratory, a
@@ -38,7 +47,16 @@ from granseg.fit import fit_campaign
 from granseg.maps import load_campaign, views_of
 from granseg.measure.quality import views_table
 from granseg.model import defaults, simulate
-from granseg.plot import bottom_fits, laws, map_comparison, profiles, rmsd_grid, view_comparison
+from granseg.plot import (
+    bottom_fits,
+    laws,
+    map_comparison,
+    map_pages,
+    profiles,
+    rmsd_grid,
+    view_comparison,
+)
+from granseg.plot.calibration import ROWS_PER_PAGE
 from granseg.report.html import (
     esc,
     figure_parts,
@@ -128,9 +146,13 @@ def _initial_profile(m: Any, params: dict[str, Any], n_cells: int) -> tuple[np.n
     return np.asarray(sol.z), np.asarray(sol.c)[0]
 
 
-#: Campaigns of more experiments than this get each experiment's map comparison as PNG only (the
-#: summary figures keep their PDF): a PDF per experiment doubles the report's time for a file few open.
-PDF_PER_EXPERIMENT_UP_TO = 24
+#: Campaigns of up to this many experiments get a figure per experiment (:func:`granseg.plot.map_comparison`);
+#: larger ones get pages of :data:`granseg.plot.calibration.ROWS_PER_PAGE` experiments each
+#: (:func:`granseg.plot.map_pages`), a fraction of the cost per experiment and a page a reader can scan.
+ONE_FIGURE_PER_EXPERIMENT_UP_TO = 12
+#: The files of a page of maps: PNG only (the summary figures keep their PDF). A PDF of a page of
+#: rasterized maps costs twice the PNG's time and ~300 MB of memory while it is written.
+PAGE_FORMATS = ("png",)
 
 
 def _figure_plan(camp: Any, fits: Any, cal: Any) -> list[tuple[Any, ...]]:
@@ -157,15 +179,32 @@ def _figure_plan(camp: Any, fits: Any, cal: Any) -> list[tuple[Any, ...]]:
     plan.append(("profiles", caption, lambda: profiles({**params, **cell}, deltas=dgrid,
                                                        delta_err=_finite(cal.stderr.get("delta_over_H")))))
     n_cells = int(cal.settings.get("n_cells", 180))
-    per_exp = ("png", "pdf") if len(maps) <= PDF_PER_EXPERIMENT_UP_TO else ("png",)
+    heights = [float(m.cell.get("H", H)) for m in maps]
+    layers = list(cal.model_layers)
+    if len(maps) <= ONE_FIGURE_PER_EXPERIMENT_UP_TO:
+        def comparison(i: int) -> Figure:
+            m = maps[i]
+            return map_comparison(m, layers[i], H=heights[i], rmsd=cal.rmsd[m.name],
+                                  initial=_initial_profile(m, params, n_cells))
 
-    def comparison(m: Any, lay: np.ndarray) -> Figure:
-        init = _initial_profile(m, params, n_cells)
-        return map_comparison(m, lay, H=float(m.cell.get("H", H)), rmsd=cal.rmsd[m.name], initial=init)
+        for i, m in enumerate(maps):
+            plan.append((_slug(i, m.name), f"{m.name}: measured and model maps", lambda i=i: comparison(i)))
+    else:
+        lim = max([float(np.nanmax(np.abs(m.c - lay))) for m, lay in zip(maps, layers, strict=True)
+                   if np.any(np.isfinite(m.c - lay))] + [1e-3])
 
-    for i, (m, lay) in enumerate(zip(maps, cal.model_layers, strict=True)):
-        plan.append((_slug(i, m.name), f"{m.name}: measured and model maps",
-                     lambda m=m, lay=lay: comparison(m, lay), per_exp))
+        def page(lo: int, hi: int) -> Figure:
+            return map_pages(maps[lo:hi], layers[lo:hi], H=heights[lo:hi],
+                             rmsd=[cal.rmsd[m.name] for m in maps[lo:hi]],
+                             initial=[_initial_profile(m, params, n_cells) for m in maps[lo:hi]], resid_lim=lim,
+                             title=f"Measured and model maps, experiments {lo + 1}-{hi} of {len(maps)}")
+
+        for n, lo in enumerate(range(0, len(maps), ROWS_PER_PAGE), 1):
+            hi = min(lo + ROWS_PER_PAGE, len(maps))
+            names = ", ".join(m.name for m in maps[lo:hi])
+            plan.append((f"maps_{n:03d}", f"Measured and model maps, experiments {lo + 1}-{hi} of {len(maps)}: "
+                         f"{names} (residual colour scale shared by all pages)",
+                         lambda lo=lo, hi=hi: page(lo, hi), PAGE_FORMATS))
     runs = [v for v in map(views_of, maps) if v]
     if runs:
         plan.append(("views", VIEWS_CAPTION, lambda: view_comparison(runs)))
