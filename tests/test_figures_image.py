@@ -195,6 +195,11 @@ def calibration_figures(maps: list[Map]) -> dict[str, Figure]:
     return {
         "map_comparison": plot.map_comparison(m, np.clip(m.c + 0.1, 0, 1), H=H, rmsd=0.1,
                                               initial=(np.linspace(0, H, 100), np.linspace(0, 1, 100))),
+        # a page of a large campaign's report: six experiments, then the last page's one
+        "map_pages": plot.map_pages(maps[:6], [np.clip(x.c + 0.1, 0, 1) for x in maps[:6]], H=H,
+                                    rmsd=[0.1] * 6, initial=[(np.linspace(0, H, 100), np.linspace(0, 1, 100))] * 6,
+                                    title="Measured and model maps, experiments 1-6 of 7"),
+        "map_pages_one": plot.map_pages(maps[6:], [np.clip(x.c - 0.1, 0, 1) for x in maps[6:]], H=H),
         "bottom_fits": plot.bottom_fits(maps, fits.tanh),
         "bottom_fits_one_ratio": plot.bottom_fits(maps[:3], fits.tanh),
         "laws": plot.laws(fits),

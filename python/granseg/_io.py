@@ -29,7 +29,9 @@ __all__ = [
     "atomic_write",
     "atomic_path",
     "check_writable",
+    "check_output_dir",
     "prepare_output_dir",
+    "staged_output_dir",
     "save_json",
     "save_npz",
 ]
@@ -63,7 +65,7 @@ def _check_folder(folder: Path) -> None:
             raise NotADirectoryError(f"{folder}: cannot be an output folder, {bad} is a file")
         raise FileNotFoundError(f"{folder}: output folder does not exist")
     if not folder.is_dir():
-        raise NotADirectoryError(f"{folder}: is a file, not an output folder")
+        raise NotADirectoryError(f"{folder}: is a file, not a directory")
     try:
         with tempfile.TemporaryFile(dir=folder, prefix=".granseg-probe."):
             pass
@@ -96,7 +98,7 @@ def check_output_dir(out: str | os.PathLike, names: Sequence[str], force: bool =
     if out.exists() and not out.is_dir():
         raise NotADirectoryError(f"{out}: exists and is not a directory")
     _check_folder(out if out.exists() else out.parent)
-    clash = [n for n in names if (out / n).exists()]
+    clash = [n for n in names if (out / n).exists() or (out / n).is_symlink()]
     if clash and not force:
         raise OutputExistsError(f"{out}: already holds {clash}; pass force=True (CLI: --force)")
     return out
@@ -113,6 +115,55 @@ def prepare_output_dir(out: str | os.PathLike, names: Sequence[str], force: bool
     for sub in (".", *folders):
         (out / sub).mkdir(exist_ok=True)
     return out
+
+
+@contextlib.contextmanager
+def staged_output_dir(out: str | os.PathLike, names: Sequence[str], force: bool = False, *,
+                      folders: Sequence[str] = ()) -> Iterator[Path]:
+    """Yield a hidden staging folder for outputs ``names`` of folder ``out``; on success move them in.
+
+    For outputs made of many files (a report: a page, its JSON, a folder of
+    figures): they are written into ``.OUT.<random>.partial`` (with its
+    sub-folders ``folders`` made), on the same file system as ``out``, and
+    only when the block ends without an exception are they moved into
+    ``out``: the whole folder renamed into place when ``out`` does not exist,
+    else each output replacing its old self (``force``). A failure, an
+    interrupt or a full disk leaves no half output and nothing that blocks
+    a rerun: the staging folder is removed whatever happens.
+
+    ``out`` is checked first (:func:`check_output_dir`), before the block
+    runs; the staging folder lives in ``out`` when it exists, else beside it.
+    """
+    dest = check_output_dir(out, names, force)
+    home = dest if dest.is_dir() else dest.parent
+    stage = Path(tempfile.mkdtemp(prefix=f".{dest.name or 'out'}.", suffix=PARTIAL_SUFFIX, dir=home))
+    try:
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(stage, 0o777 & ~umask)  # the folder a plain mkdir would make (mkdtemp's is private)
+        for sub in folders:
+            (stage / sub).mkdir()
+        try:
+            yield stage
+        except OSError as exc:
+            # name the file as the user knows it (OUT/figures/x.png), not by its staging path
+            where = exc.filename if isinstance(exc.filename, str) else ""
+            if exc.errno is None or not where.startswith(str(stage)):
+                raise
+            raise OSError(exc.errno, exc.strerror, str(dest) + where[len(str(stage)):]) from exc
+        check_output_dir(dest, names, force)  # nothing appeared meanwhile
+        if not dest.exists():
+            os.rename(stage, dest)
+            return
+        for name in names:
+            new, old = stage / name, dest / name
+            if not (new.exists() or new.is_symlink()):
+                continue
+            if old.is_dir() and not old.is_symlink():
+                os.rename(old, stage / f".{name}.old")  # swapped out, removed with the stage
+            os.replace(new, old)
+    finally:
+        shutil.rmtree(stage, ignore_errors=True)
 
 
 #: Ending of the hidden folder an unfinished write lives in (``.NAME.<random>.partial/NAME``).
@@ -138,8 +189,14 @@ def atomic_path(path: str | os.PathLike, force: bool = False, suffix: str = "") 
     tmp_dir = Path(tempfile.mkdtemp(prefix=f".{dest.name}.", suffix=PARTIAL_SUFFIX, dir=dest.parent))
     tmp_path = tmp_dir / (dest.name if not suffix or dest.name.endswith(suffix) else dest.name + suffix)
     try:
-        tmp_path.touch()  # writers get an existing, empty file, as they did from mkstemp
-        yield tmp_path
+        try:
+            tmp_path.touch()  # writers get an existing, empty file, as they did from mkstemp
+            yield tmp_path
+        except OSError as exc:
+            if exc.errno is None or exc.filename not in (None, str(tmp_path)):
+                raise
+            # a failed write (a full disk: ENOSPC) says what went wrong but not where: name the file
+            raise OSError(exc.errno, f"{exc.strerror or exc}; nothing written", str(dest)) from exc
         if not tmp_path.is_file():
             raise OSError(f"{dest}: the writer left no file; nothing written")
         if not force and dest.exists():

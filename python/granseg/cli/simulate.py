@@ -90,6 +90,7 @@ def _measured(args: argparse.Namespace, params: dict[str, float]) -> dict[str, f
 def run(args: argparse.Namespace) -> int:
     import granseg
     from granseg import fit, plot
+    from granseg.plot.base import literal
 
     like = _like(args)
     if like is not None:
@@ -134,7 +135,7 @@ def run(args: argparse.Namespace) -> int:
               f"RMSD {np.sqrt(np.nanmean(diff**2)):.4f}")
 
     p = sol.params
-    title = (f"{args.heavy if args.rho_h is None else ''}/{args.light if args.rho_l is None else ''} "
+    title = (f"{literal(args.heavy) if args.rho_h is None else ''}/{literal(args.light) if args.rho_l is None else ''} "
              rf"$\delta_R$ = {p['rho_h'] / p['rho_l']:.2f}, $c_0$ = {p['c0']:.2f}, "
              rf"k = {p['k']:.2f}, $\delta/H$ = {p['delta_over_H']:.3f}").lstrip("/ ")
     fig = plot.simulation(sol, steady=steady, fit=bottom if bottom.converged else None, title=title)

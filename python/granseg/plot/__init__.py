@@ -7,7 +7,7 @@ style (:data:`STYLE`); :func:`save_figure` writes it as ``STEM.png`` and
 
 - :mod:`~granseg.plot.base`: the style, axis labels, cell edges, saving;
 - :mod:`~granseg.plot.calibration`: a campaign's calibration and one model run
-  (``map_comparison``, ``bottom_fits``, ``laws``, ``rmsd_grid``, ``profiles``,
+  (``map_comparison``, ``map_pages``, ``bottom_fits``, ``laws``, ``rmsd_grid``, ``profiles``,
   ``simulation``);
 - :mod:`~granseg.plot.diagnosis`: the evidence of a diagnosis (``residual_maps``,
   ``covariates``, ``candidates``, ``gain``, ``before_after``; by name in
@@ -31,6 +31,7 @@ from granseg.plot.calibration import (
     bottom_fits,
     laws,
     map_comparison,
+    map_pages,
     profiles,
     rmsd_grid,
     simulation,
@@ -47,6 +48,7 @@ __all__ = [
     "style",
     "save_figure",
     "map_comparison",
+    "map_pages",
     "bottom_fits",
     "laws",
     "rmsd_grid",

@@ -2,7 +2,13 @@
 
 Figures are built without pyplot (no GUI, no global state, Agg canvas) inside
 :func:`style`; :func:`save_figure` writes each as ``STEM.png`` and
-``STEM.pdf`` atomically, refusing to replace existing files unless ``force``.
+``STEM.pdf`` atomically, refusing to replace existing files unless ``force``,
+and :func:`release` frees a saved figure at once (a report of hundreds of
+figures holds one at a time).
+
+Text a user supplied (an experiment's name, a material, a parameter name) is
+put in a figure through :func:`literal`, so that it is shown as written: a
+``$`` in a name never starts matplotlib's mathtext.
 """
 
 from __future__ import annotations
@@ -20,8 +26,8 @@ from matplotlib.figure import Figure
 
 from granseg._io import atomic_path, check_writable
 
-__all__ = ["STYLE", "C_LABEL", "T_LABEL", "H_LABEL", "style", "new_figure", "save_figure", "edges",
-           "time_edges", "map_edges", "pm_text"]
+__all__ = ["STYLE", "C_LABEL", "T_LABEL", "H_LABEL", "style", "new_figure", "save_figure", "release",
+           "literal", "edges", "time_edges", "map_edges", "pm_text"]
 
 STYLE: dict[str, Any] = {
     "font.size": 8.5,
@@ -63,21 +69,51 @@ def new_figure(width: float, height: float) -> Figure:
     return Figure(figsize=(width, height), layout="constrained")
 
 
-def save_figure(fig: Figure, stem: str | os.PathLike, *, force: bool = False) -> list[Path]:
+def literal(text: Any) -> str:
+    """``text`` (a name, a material, any text a user supplied) escaped for a matplotlib label.
+
+    Every ``$`` becomes ``\\$``, which matplotlib shows as a plain dollar sign
+    whether or not the rest of the label holds mathtext (``$\\delta_R$``): a
+    name such as ``G-$\\foo{$-50`` is shown as written instead of being parsed
+    as a formula (and failing). Other characters need no escaping outside
+    ``$...$``.
+    """
+    return str(text).replace("$", r"\$")
+
+
+def save_figure(fig: Figure, stem: str | os.PathLike, *, force: bool = False,
+                formats: tuple[str, ...] = ("png", "pdf")) -> list[Path]:
     """Write ``fig`` to ``STEM.png`` and ``STEM.pdf`` atomically; return both paths.
 
     Both destinations are checked before anything is written, so an existing
-    file (without ``force``) leaves neither half written.
+    file (without ``force``) leaves neither half written. ``formats`` chooses
+    the files (in that order; PNG and PDF by default).
     """
     stem = Path(stem)
-    paths = [stem.with_name(stem.name + ext) for ext in (".png", ".pdf")]
+    paths = [stem.with_name(f"{stem.name}.{ext}") for ext in formats]
     for p in paths:
         check_writable(p, force)
+    # a figure laid out by hand (no layout engine: a page of maps) fills its canvas as made; trimming
+    # it would draw it twice
+    bbox = {} if fig.get_layout_engine() is not None else {"bbox_inches": None}
     with style():
         for p in paths:
             with atomic_path(p, force=force) as tmp:
-                fig.savefig(tmp, format=p.suffix[1:])
+                fig.savefig(tmp, format=p.suffix[1:], **bbox)
     return paths
+
+
+def release(fig: Figure) -> None:
+    """Free saved figure ``fig`` now: its artists and data, and the canvas's pixel buffer.
+
+    A figure's parts refer to each other, so dropping the last reference
+    frees them only at the next full garbage collection; a report drawing
+    hundreds of figures would hold them all until then. The figure is empty
+    afterwards.
+    """
+    fig.clear()
+    for attr in ("renderer", "_lastKey"):  # the Agg canvas's cached renderer holds the pixel buffer
+        fig.canvas.__dict__.pop(attr, None)
 
 
 def edges(x: np.ndarray, lo: float | None = None, hi: float | None = None) -> np.ndarray:

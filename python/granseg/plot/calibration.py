@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
-from matplotlib.ticker import FuncFormatter
+from matplotlib.ticker import FuncFormatter, MaxNLocator
 
 from granseg.fit import FitResult, beta_law, tanh_curve, tau_law
 from granseg.plot.base import (
@@ -24,6 +24,7 @@ from granseg.plot.base import (
     H_LABEL,
     T_LABEL,
     edges,
+    literal,
     map_edges,
     new_figure,
     pm_text,
@@ -31,7 +32,7 @@ from granseg.plot.base import (
     time_edges,
 )
 
-__all__ = ["map_comparison", "bottom_fits", "laws", "rmsd_grid", "profiles", "simulation"]
+__all__ = ["map_comparison", "map_pages", "ROWS_PER_PAGE", "bottom_fits", "laws", "rmsd_grid", "profiles", "simulation"]
 
 
 # --------------------------------------------------------------------------- maps
@@ -71,14 +72,106 @@ def map_comparison(measured: Any, model: np.ndarray, *, H: float, rmsd: float | 
                    alignment="left")
         fig.colorbar(m1, ax=axes[1:3], label=C_LABEL, shrink=0.9, pad=0.01)
         fig.colorbar(m3, ax=axes[3], label=r"measured $-$ model $\Delta c$ [-]", shrink=0.9, pad=0.01)
-        head = f"{measured.name}: {measured.heavy}/{measured.light}, " \
+        head = f"{literal(measured.name)}: {literal(measured.heavy)}/{literal(measured.light)}, " \
                rf"$\delta_R$ = {measured.delta_R:.2f}, $c_0$ = {measured.c0:.2f}"
         fig.suptitle(head + ("" if rmsd is None else f", RMSD = {rmsd:.3f}"), fontsize=9)
     return fig
 
 
+#: Experiments per page of :func:`map_pages`: six rows fill a journal page (7.2 in x 9.3 in).
+ROWS_PER_PAGE = 6
+
+
+def map_pages(measured: Sequence[Any], models: Sequence[np.ndarray], *, H: float | Sequence[float],
+              rmsd: Sequence[float | None] | None = None,
+              initial: Sequence[tuple[np.ndarray, np.ndarray] | None] | None = None,
+              resid_lim: float | None = None, title: str = "") -> Figure:
+    """Several experiments' measured map, model map and residual on one page, a row each.
+
+    What :func:`map_comparison` shows for one experiment, for up to
+    :data:`ROWS_PER_PAGE` of them: the initial profile, the measured map, the
+    model map and measured - model, with the experiment named above its row.
+    The colour scales are shared (the residual's is ``resid_lim``, by default
+    the largest residual on the page; pass one value for every page of a
+    campaign so the pages compare). For the report of a large campaign:
+    the page is laid out by hand (no layout engine) and saved without
+    trimming, so it costs a fraction of one figure per experiment.
+    ``H`` [m] is the bed height (one per experiment or one for all).
+    """
+    n = len(measured)
+    if not 1 <= n <= ROWS_PER_PAGE:
+        raise ValueError(f"map_pages: 1 to {ROWS_PER_PAGE} experiments per page, got {n}")
+    if len(models) != n:
+        raise ValueError(f"map_pages: {n} measured maps but {len(models)} model maps")
+    heights = [float(H)] * n if np.isscalar(H) else [float(h) for h in H]  # type: ignore[arg-type]
+    rmsds = list(rmsd) if rmsd is not None else [None] * n
+    inits = list(initial) if initial is not None else [None] * n
+    models = [np.asarray(m, dtype=float) for m in models]
+    for m, mod in zip(measured, models, strict=True):
+        if mod.shape != m.c.shape:
+            raise ValueError(f"model map shape {mod.shape} != measured {m.c.shape} ({m.name})")
+    resids = [m.c - mod for m, mod in zip(measured, models, strict=True)]
+    lim = resid_lim or max(max(float(np.nanmax(np.abs(r))) if np.any(np.isfinite(r)) else 0.0
+                               for r in resids), 1e-3)
+    # the page in inches: margins, four columns, rows with room for tick labels and the next row's name
+    W, left, right, gap = 7.2, 0.62, 0.1, 0.1
+    top, row_h, row_gap, bottom = 0.78, 0.85, 0.5, 1.1
+    Hin = top + n * row_h + (n - 1) * row_gap + bottom
+    unit = (W - left - right - 3 * gap) / 3.36
+    widths = [0.36 * unit, unit, unit, unit]
+    xs = np.concatenate([[left], left + np.cumsum(np.array(widths[:-1]) + gap)])
+    with style():
+        fig = Figure(figsize=(W, Hin))
+        rows = []
+        for r, (m, mod, res) in enumerate(zip(measured, models, resids, strict=True)):
+            y0 = Hin - top - (r + 1) * row_h - r * row_gap
+            ax0 = fig.add_axes((xs[0] / W, y0 / Hin, widths[0] / W, row_h / Hin))
+            axes = [ax0] + [fig.add_axes((x / W, y0 / Hin, w / W, row_h / Hin), sharey=ax0)
+                            for x, w in zip(xs[1:], widths[1:], strict=True)]
+            axes[2].sharex(axes[1])
+            axes[3].sharex(axes[1])
+            rows.append(axes)
+            te, ze = map_edges(m, heights[r])
+            _initial_panel(axes[0], m, mod, heights[r], inits[r], compact=True)
+            kw = {"shading": "flat", "rasterized": True}
+            m1 = axes[1].pcolormesh(te, ze, m.c.T, vmin=0, vmax=1, cmap="viridis", **kw)
+            axes[2].pcolormesh(te, ze, mod.T, vmin=0, vmax=1, cmap="viridis", **kw)
+            m3 = axes[3].pcolormesh(te, ze, res.T, vmin=-lim, vmax=lim, cmap="RdBu_r", **kw)
+            axes[0].set_ylim(ze[0], ze[-1])
+            for ax in axes[1:]:
+                ax.tick_params(labelleft=False)
+                ax.xaxis.set_major_locator(MaxNLocator(5))
+            head = (f"{literal(m.name)}: {literal(m.heavy)}/{literal(m.light)}, " + rf"$\delta_R$ = {m.delta_R:.2f}, "
+                    rf"$c_0$ = {m.c0:.2f}" + ("" if rmsds[r] is None else f", RMSD = {rmsds[r]:.3f}"))
+            fig.text(xs[0] / W, (y0 + row_h + 0.06) / Hin, head, ha="left", va="bottom", fontsize=7.5,
+                     fontweight="bold")
+        for ax in rows[-1][1:]:
+            ax.set_xlabel(T_LABEL)
+        rows[-1][0].set_xlabel(r"$c(t_0)$ [-]")
+        for axes in rows[:-1]:
+            axes[0].tick_params(labelbottom=True)
+        # column headings above the first row, the page's title and the initial panel's legend above them
+        first_top = 1 - top / Hin
+        for x, w, label in zip(xs, widths, ("initial", "measured", "model", "measured $-$ model"), strict=True):
+            fig.text((x + w / 2) / W, first_top + 0.27 / Hin, label, ha="center", va="bottom", fontsize=8.5)
+        if title:
+            fig.text(left / W, 1 - 0.08 / Hin, title, ha="left", va="top", fontsize=9)
+        fig.legend(*rows[0][0].get_legend_handles_labels(), loc="upper right", bbox_to_anchor=(1 - right / W,
+                   1 - 0.04 / Hin), ncols=3, fontsize=6.5, handlelength=1.2, columnspacing=1.0,
+                   title="initial profile:", title_fontsize=6.5, alignment="left", borderaxespad=0)
+        # colour bars under the last row: c under measured and model, the residual under its column
+        cb_y, cb_h, cb_gap = 0.42 / Hin, 0.09 / Hin, 0.2
+        cax1 = fig.add_axes((xs[1] / W, cb_y, (xs[2] + widths[2] - xs[1] - cb_gap) / W, cb_h))
+        cax2 = fig.add_axes(((xs[3] + cb_gap) / W, cb_y, (widths[3] - cb_gap) / W, cb_h))
+        fig.colorbar(m1, cax=cax1, orientation="horizontal", label=C_LABEL)
+        fig.colorbar(m3, cax=cax2, orientation="horizontal", label=r"measured $-$ model $\Delta c$ [-]")
+        cax1.xaxis.set_major_locator(MaxNLocator(5))
+        cax2.xaxis.set_major_locator(MaxNLocator(3, symmetric=True))
+    return fig
+
+
 def _initial_panel(ax: Any, measured: Any, model: np.ndarray, H: float,
-                   initial: tuple[np.ndarray, np.ndarray] | None) -> None:
+                   initial: tuple[np.ndarray, np.ndarray] | None, compact: bool = False) -> None:
     ax.plot(measured.c[0], measured.z / H, "o", color="#D55E00", ms=3, label="measured")
     ax.plot(model[0], measured.z / H, "s", mfc="none", color="#0072B2", ms=3, label="model layers")
     if initial is not None:
@@ -86,6 +179,9 @@ def _initial_panel(ax: Any, measured: Any, model: np.ndarray, H: float,
     ax.set_xlim(-0.05, 1.05)
     ax.set_xticks([0, 1], ["0", "1"])  # a narrow panel: two labels do not collide
     ax.set_xticks([0.5], minor=True)
+    if compact:  # a row of map_pages: the page says which panel is which
+        ax.set_ylabel(r"$H^*$ [-]")
+        return
     ax.set_xlabel(r"$c(t_0)$ [-]")
     ax.set_ylabel(H_LABEL)
     ax.set_title("initial", loc="left")
@@ -111,6 +207,10 @@ def _log_times(t: np.ndarray, n: int) -> np.ndarray:
     return np.unique(pos[np.clip(np.searchsorted(t[pos], grid), 0, pos.size - 1)])
 
 
+#: Experiments named in a panel of :func:`bottom_fits`; a panel of more is coloured and counted by c0.
+NAMED_PER_PANEL = 8
+
+
 def bottom_fits(maps: Sequence[Any], fits: Mapping[str, FitResult]) -> Figure:
     """Bottom-layer series c[:, 0] of each map (markers) with its tanh fit (lines).
 
@@ -119,7 +219,9 @@ def bottom_fits(maps: Sequence[Any], fits: Mapping[str, FitResult]) -> Figure:
     colour and its name in the panel's legend. Time runs on a log axis (from
     the first sample after t = 0), so the rise, which takes a few per cent of a
     long run, is as visible as the plateau. Maps without a fit in ``fits``
-    are drawn without a curve.
+    are drawn without a curve. A panel of more than :data:`NAMED_PER_PANEL`
+    experiments (a large campaign) cannot name each: its colours are the c0
+    values instead, with the count of experiments at each.
     """
     groups = _by_density_ratio(maps)
     cols = min(3, len(groups))
@@ -128,25 +230,33 @@ def bottom_fits(maps: Sequence[Any], fits: Mapping[str, FitResult]) -> Figure:
         fig = new_figure(7.2 if cols > 1 else 3.5, 1.75 * rows + 0.45)
         axes = np.atleast_1d(fig.subplots(rows, cols, sharey=True, squeeze=False)).ravel()
         for ax, (dR, group) in zip(axes, groups, strict=False):
+            many = len(group) > NAMED_PER_PANEL
+            by_c0 = {c: f"C{k % 8}" for k, c in enumerate(sorted({round(float(m.c0), 2) for m in group}))}
             for i, m in enumerate(group):
-                color = f"C{i % 8}"
+                color = by_c0[round(float(m.c0), 2)] if many else f"C{i % 8}"
                 t = np.asarray(m.t, dtype=float)
-                pick = _log_times(t, 50)
-                ax.plot(t[pick], np.asarray(m.bottom)[pick], "o", ms=2.2, alpha=0.5, color=color, mec="none")
-                label = m.name
+                pick = _log_times(t, 20 if many else 50)
+                ax.plot(t[pick], np.asarray(m.bottom)[pick], "o", ms=1.8 if many else 2.2, alpha=0.35 if many else 0.5,
+                        color=color, mec="none")
+                label = "_" if many else literal(m.name)  # "_": no legend entry of its own
                 if m.name in fits:
                     f = fits[m.name]
                     tt = np.geomspace(t[t > 0][0], t[-1], 300) if np.any(t > 0) else t
-                    ax.plot(tt, tanh_curve(tt, f["A"], f["t0"], f["tau"]), "-", lw=1.1, color=color,
-                            label=label + ("" if f.converged else " (not conv.)"))
-                else:
+                    ax.plot(tt, tanh_curve(tt, f["A"], f["t0"], f["tau"]), "-", lw=0.7 if many else 1.1,
+                            color=color, label=label if many else label + ("" if f.converged else " (not conv.)"))
+                elif not many:
                     ax.plot([], [], "o", color=color, label=label + " (no fit)")
+            if many:  # too many to name: the colour says c0, the legend counts them
+                for c0, color in by_c0.items():
+                    n = sum(round(float(m.c0), 2) == c0 for m in group)
+                    ax.plot([], [], "-", color=color, label=rf"$c_0$ = {c0:g} ({n})")
             ax.set_xscale("log")
             ax.set_ylim(-0.03, 1.03)
-            pairs = sorted({f"{m.heavy}/{m.light}" for m in group})
+            pairs = sorted({literal(f"{m.heavy}/{m.light}") for m in group})
             ax.set_title(rf"$\delta_R$ = {dR:.2f}: " + ", ".join(pairs), loc="left", fontsize=7.5)
             ax.tick_params(labelsize=7)
-            ax.legend(loc="best", fontsize=6, handlelength=1.0, borderaxespad=0.2, labelspacing=0.2)
+            ax.legend(loc="best", fontsize=6, handlelength=1.0, borderaxespad=0.2, labelspacing=0.2,
+                      title=f"{len(group)} experiments" if many else None, title_fontsize=6)
         for ax in axes[len(groups):]:
             ax.set_visible(False)
         for ax in axes[::cols]:
@@ -272,7 +382,7 @@ def _grid_ticks(vals: Sequence[float], lo: float, hi: float) -> list[float]:
 
 def _best_label(best: Mapping[str, float], err: Mapping[str, float], keys: list) -> str:
     names = {"k": "$k$", "delta_over_H": r"$\delta/H$"}
-    return "refined optimum $\\pm$ 1 s.e.:\n" + ", ".join(f"{names.get(k, k)} = {pm_text(float(best[k]), err[k])}" for k in keys)
+    return "refined optimum $\\pm$ 1 s.e.:\n" + ", ".join(f"{names.get(k, literal(k))} = {pm_text(float(best[k]), err[k])}" for k in keys)
 
 
 def _annotate_cells(ax: Any, xs: list, ys: list, table: np.ndarray) -> None:
@@ -299,7 +409,7 @@ _LABELS = {"k": "friction correction $k$ [-]", "delta_over_H": r"shear-band deca
 
 
 def _param_label(key: str) -> str:
-    return _LABELS.get(key, key)
+    return _LABELS.get(key, literal(key))
 
 
 def profiles(params: Mapping[str, float], *, deltas: Sequence[float] = (),

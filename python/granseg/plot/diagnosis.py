@@ -29,7 +29,7 @@ from matplotlib.ticker import FixedLocator, MaxNLocator, NullFormatter, NullLoca
 from granseg.fitting.causes import M_TILDE_REF
 from granseg.maps import views_of
 from granseg.model import defaults
-from granseg.plot.base import H_LABEL, STYLE, T_LABEL, map_edges, new_figure, style
+from granseg.plot.base import H_LABEL, STYLE, T_LABEL, literal, map_edges, new_figure, style
 from granseg.plot.views import view_comparison
 
 if TYPE_CHECKING:
@@ -62,7 +62,7 @@ def residual_maps(d: Diagnosis) -> Figure:
         for ax, m, lay in zip(axes, d.maps, d.baseline.layers, strict=False):
             mesh = ax.pcolormesh(*map_edges(m, _bed_height(d, m)), (m.c - lay).T, cmap="RdBu_r", norm=norm,
                                  rasterized=True)
-            ax.set_title(rf"{m.name}, $\tilde M$ = {m.M_tilde:.2f}", fontsize=7.5)
+            ax.set_title(rf"{literal(m.name)}, $\tilde M$ = {m.M_tilde:.2f}", fontsize=7.5)
             ax.tick_params(labelsize=6.5)
             ax.xaxis.set_major_locator(MaxNLocator(4))
         for ax in axes[n:]:
@@ -118,7 +118,7 @@ def covariates(d: Diagnosis) -> Figure:
         b.set_ylabel(r"own optimal $k$ [-]")
         b.set_title("(b) friction correction by material pair", loc="left")
         for p, col in colours.items():
-            b.scatter([], [], c=col, s=22, label=p)
+            b.scatter([], [], c=col, s=22, label=literal(p))
         b.legend(loc="best", fontsize=6.5, ncols=2)
         e.scatter(mt, ev["depth_mean"]["excess_while_mixed"], c=c, s=22, zorder=3)
         e.axhline(0, color="0.5", lw=0.8)
@@ -239,7 +239,7 @@ def gain(d: Diagnosis) -> Figure:
                    label=f"{label} (held out)")
         ax.plot(x, [r["noise"]["per_experiment"][n] for n in names], "k_", ms=14, mew=1.6,
                 label="noise floor")
-        ax.set_xticks(x, names, rotation=45 if len(names) > 6 else 0, ha="right" if len(names) > 6 else "center",
+        ax.set_xticks(x, [literal(n) for n in names], rotation=45 if len(names) > 6 else 0, ha="right" if len(names) > 6 else "center",
                       fontsize=7)
         ax.set_ylabel("RMSD [-]")
         ax.set_title("Misfit per experiment", loc="left")
@@ -284,7 +284,7 @@ def before_after(d: Diagnosis) -> Figure:
             ax.set_xlabel(T_LABEL)
         axes[0].set_ylabel(H_LABEL)
         fig.colorbar(mesh, ax=list(axes), label=r"heavy share $c$ [-]", shrink=0.9, pad=0.01)
-        fig.suptitle(f"{m.name}: {m.heavy}/{m.light}, $c_0$ = {m.c0:.2f}, "
+        fig.suptitle(f"{literal(m.name)}: {literal(m.heavy)}/{literal(m.light)}, $c_0$ = {m.c0:.2f}, "
                      rf"$\tilde M$ = {m.M_tilde:.2f}", fontsize=9)
     return fig
 

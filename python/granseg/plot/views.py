@@ -21,7 +21,16 @@ from matplotlib.figure import Figure
 
 from granseg.constants import D_P, N_LAYERS
 from granseg.measure.quality import window_check_of
-from granseg.plot.base import C_LABEL, H_LABEL, STYLE, T_LABEL, map_edges, new_figure, style
+from granseg.plot.base import (
+    C_LABEL,
+    H_LABEL,
+    STYLE,
+    T_LABEL,
+    literal,
+    map_edges,
+    new_figure,
+    style,
+)
 
 __all__ = ["view_comparison", "depth_mean"]
 
@@ -80,7 +89,7 @@ def _map_panels(axes: Sequence[Any], run: Mapping[str, Any]) -> list[Any]:
     axes[1].pcolormesh(*map_edges(wall, _height(wall)), wall.c.T, vmin=0, vmax=1, cmap="viridis", **kw)
     diff = wall.c - bulk.c if same else np.full(bulk.c.shape, np.nan)
     m2 = axes[2].pcolormesh(te, ze, diff.T, vmin=-0.6, vmax=0.6, cmap="RdBu_r", **kw)
-    axes[0].set_ylabel(f"{bulk.name}\n{H_LABEL}", fontsize=7)
+    axes[0].set_ylabel(f"{literal(bulk.name)}\n{H_LABEL}", fontsize=7)
     for ax in axes:
         ax.tick_params(labelsize=6.5)
     for ax in axes[1:]:

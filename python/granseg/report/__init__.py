@@ -8,8 +8,11 @@
   (``granseg diagnose --report``).
 
 Each page builder refuses to replace existing outputs unless ``force``
-(:func:`granseg._io.prepare_output_dir`). The builders are loaded on first
-use, so ``import granseg.report`` stays light.
+(:func:`granseg._io.check_output_dir`, before any work), draws and saves one
+figure at a time, and builds the report in a hidden folder moved into place at
+the end (:func:`granseg._io.staged_output_dir`): a failure leaves no half
+report. The builders are loaded on first use, so ``import granseg.report``
+stays light.
 
 Example::
 

@@ -8,6 +8,15 @@ figures and writes into ``OUT``::
     OUT/report.json     every number the page shows, machine-readable
     OUT/figures/*.png   the same figures as files, with a PDF beside each
 
+Each experiment's measured and model maps are one figure per experiment in a
+campaign of up to :data:`ONE_FIGURE_PER_EXPERIMENT_UP_TO` experiments, and
+pages of six experiments in a larger one (PNG only, :data:`PAGE_FORMATS`).
+The figures are drawn, saved and freed one at a time and the page is written
+piece by piece, so the memory a report needs does not grow with the
+campaign. Everything is written into a hidden
+``.OUT.*.partial`` folder and moved into place at the end: a report that fails
+leaves nothing behind (:func:`granseg._io.staged_output_dir`).
+
 The HTML is rendered from the JSON document (:func:`render`), so the two
 cannot disagree. The page opens with the provenance (input, granseg version,
 UTC date, command line) and, for data not measured in a laboratory, a
@@ -25,36 +34,46 @@ from __future__ import annotations
 import os
 import re
 import warnings
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 from matplotlib.figure import Figure
 
-from granseg._io import atomic_write_text, prepare_output_dir, save_json
+from granseg._io import check_output_dir, save_json, staged_output_dir
 from granseg.calibration import CalibrationWarning, calibrate
 from granseg.fit import fit_campaign
 from granseg.maps import load_campaign, views_of
 from granseg.measure.quality import views_table
 from granseg.model import defaults, simulate
-from granseg.plot import bottom_fits, laws, map_comparison, profiles, rmsd_grid, view_comparison
+from granseg.plot import (
+    bottom_fits,
+    laws,
+    map_comparison,
+    map_pages,
+    profiles,
+    rmsd_grid,
+    view_comparison,
+)
+from granseg.plot.calibration import ROWS_PER_PAGE
 from granseg.report.html import (
     esc,
-    figures,
+    figure_parts,
     num,
     nums,
-    page,
+    page_parts,
     pm,
     provenance_section,
     save_figures,
     table,
     views_section,
+    write_page,
     yesno,
 )
 from granseg.report.provenance import provenance as make_provenance
 
-__all__ = ["OUTPUTS", "build_report", "report_data", "render"]
+__all__ = ["OUTPUTS", "build_report", "report_data", "render", "render_parts"]
 
 OUTPUTS = ("index.html", "report.json", "figures")
 VIEWS_CAPTION = ("Each run's camera view against its bulk: both maps, their difference, and each view's "
@@ -87,8 +106,10 @@ def build_report(
     whether the data were generated rather than measured (None: as the maps
     tell, :func:`granseg.report.provenance.data_origin`). Returns the HTML path.
     """
+    out = check_output_dir(out, OUTPUTS, force)  # a bad or taken DIR fails now, not after the calibration
+    if fits_c0 is not None and not (isinstance(fits_c0, int | float) and 0.0 <= fits_c0 <= 1.0):
+        raise ValueError(f"fits_c0 = {fits_c0!r}: expected a concentration in [0, 1] (or None for all)")
     camp = campaign if hasattr(campaign, "maps") else load_campaign(campaign)
-    out = prepare_output_dir(out, OUTPUTS, force, folders=["figures"])
     fits = fit_campaign(camp, c0=fits_c0)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", CalibrationWarning)
@@ -99,14 +120,17 @@ def build_report(
         if issubclass(w.category, CalibrationWarning):
             notes.append(str(w.message))
     log = (lambda msg: print(f"[report] {msg}", flush=True)) if progress else None
-    figs = save_figures(_draw_figures(camp, fits, cal), out, force=force, log=log)
-    prov = make_provenance(list(camp), directory=getattr(camp, "directory", None), command=command,
-                           synthetic=synthetic)
-    data = report_data(camp, fits, cal, figs, provenance=prov)
-    data["warnings"] = notes
-    save_json(out / "report.json", data, force=force)
-    text = render(data, out)
-    atomic_write_text(out / "index.html", text, force=force)
+    plan = _figure_plan(camp, fits, cal)
+    # everything is written into a hidden folder beside (or in) OUT and moved into place at the end:
+    # a failure (a bad name, a full disk, Ctrl-C) leaves no half report that blocks the rerun
+    with staged_output_dir(out, OUTPUTS, force, folders=["figures"]) as stage:
+        figs = save_figures(plan, stage, log=log, total=len(plan))
+        prov = make_provenance(list(camp), directory=getattr(camp, "directory", None), command=command,
+                               synthetic=synthetic)
+        data = report_data(camp, fits, cal, figs, provenance=prov)
+        data["warnings"] = notes
+        save_json(stage / "report.json", data)
+        write_page(stage / "index.html", render_parts(data, stage))
     return out / "index.html"
 
 
@@ -122,34 +146,69 @@ def _initial_profile(m: Any, params: dict[str, Any], n_cells: int) -> tuple[np.n
     return np.asarray(sol.z), np.asarray(sol.c)[0]
 
 
-def _draw_figures(camp: Any, fits: Any, cal: Any) -> list[tuple[str, str, Figure]]:
-    """The report's figures as (file stem, caption, figure)."""
+#: Campaigns of up to this many experiments get a figure per experiment (:func:`granseg.plot.map_comparison`);
+#: larger ones get pages of :data:`granseg.plot.calibration.ROWS_PER_PAGE` experiments each
+#: (:func:`granseg.plot.map_pages`), a fraction of the cost per experiment and a page a reader can scan.
+ONE_FIGURE_PER_EXPERIMENT_UP_TO = 12
+#: The files of a page of maps: PNG only (the summary figures keep their PDF). A PDF of a page of
+#: rasterized maps costs twice the PNG's time and ~300 MB of memory while it is written.
+PAGE_FORMATS = ("png",)
+
+
+def _figure_plan(camp: Any, fits: Any, cal: Any) -> list[tuple[Any, ...]]:
+    """The report's figures as (file stem, caption, function drawing the figure[, formats]).
+
+    Nothing is drawn here: :func:`granseg.report.html.save_figures` draws, saves and frees one
+    figure at a time, so memory stays flat in the number of experiments."""
     params = _model_constants(cal)
     H = float(params["H"])
-    figs: list[tuple[str, str, Figure]] = [
-        ("bottom_fits", "Bottom-layer concentration with tanh fits", bottom_fits(list(camp), fits.tanh)),
-        ("laws", "Final concentration A and time tau against density ratio", laws(fits)),
+    maps = list(camp)
+    plan: list[tuple[Any, ...]] = [
+        ("bottom_fits", "Bottom-layer concentration with tanh fits", lambda: bottom_fits(maps, fits.tanh)),
+        ("laws", "Final concentration A and time tau against density ratio", lambda: laws(fits)),
     ]
     if len(cal.keys) == 2:
-        figs.append(("rmsd_grid", "Mean RMSD over the factorial grid",
-                     rmsd_grid(cal.grid_points, cal.grid_mean, best=cal.best if cal.refined else None,
-                               stderr=cal.stderr if cal.refined else None)))
+        plan.append(("rmsd_grid", "Mean RMSD over the factorial grid",
+                     lambda: rmsd_grid(cal.grid_points, cal.grid_mean, best=cal.best if cal.refined else None,
+                                       stderr=cal.stderr if cal.refined else None)))
     dgrid = cal.settings["grid"].get("delta_over_H", [])
     cell, differ = _shared_cell(camp)
     caption = "Velocity and shear-rate profiles of the calibrated model"
     if differ:
         caption += f" (in the first map's cell: the maps' {', '.join(differ)} differ)"
-    figs.append(("profiles", caption, profiles({**params, **cell}, deltas=dgrid,
-                                                 delta_err=_finite(cal.stderr.get("delta_over_H")))))
+    plan.append(("profiles", caption, lambda: profiles({**params, **cell}, deltas=dgrid,
+                                                       delta_err=_finite(cal.stderr.get("delta_over_H")))))
     n_cells = int(cal.settings.get("n_cells", 180))
-    for i, (m, lay) in enumerate(zip(camp, cal.model_layers, strict=True)):
-        init = _initial_profile(m, params, n_cells)
-        fig = map_comparison(m, lay, H=float(m.cell.get("H", H)), rmsd=cal.rmsd[m.name], initial=init)
-        figs.append((_slug(i, m.name), f"{m.name}: measured and model maps", fig))
-    runs = [v for v in map(views_of, camp) if v]
+    heights = [float(m.cell.get("H", H)) for m in maps]
+    layers = list(cal.model_layers)
+    if len(maps) <= ONE_FIGURE_PER_EXPERIMENT_UP_TO:
+        def comparison(i: int) -> Figure:
+            m = maps[i]
+            return map_comparison(m, layers[i], H=heights[i], rmsd=cal.rmsd[m.name],
+                                  initial=_initial_profile(m, params, n_cells))
+
+        for i, m in enumerate(maps):
+            plan.append((_slug(i, m.name), f"{m.name}: measured and model maps", lambda i=i: comparison(i)))
+    else:
+        lim = max([float(np.nanmax(np.abs(m.c - lay))) for m, lay in zip(maps, layers, strict=True)
+                   if np.any(np.isfinite(m.c - lay))] + [1e-3])
+
+        def page(lo: int, hi: int) -> Figure:
+            return map_pages(maps[lo:hi], layers[lo:hi], H=heights[lo:hi],
+                             rmsd=[cal.rmsd[m.name] for m in maps[lo:hi]],
+                             initial=[_initial_profile(m, params, n_cells) for m in maps[lo:hi]], resid_lim=lim,
+                             title=f"Measured and model maps, experiments {lo + 1}-{hi} of {len(maps)}")
+
+        for n, lo in enumerate(range(0, len(maps), ROWS_PER_PAGE), 1):
+            hi = min(lo + ROWS_PER_PAGE, len(maps))
+            names = ", ".join(m.name for m in maps[lo:hi])
+            plan.append((f"maps_{n:03d}", f"Measured and model maps, experiments {lo + 1}-{hi} of {len(maps)}: "
+                         f"{names} (residual colour scale shared by all pages)",
+                         lambda lo=lo, hi=hi: page(lo, hi), PAGE_FORMATS))
+    runs = [v for v in map(views_of, maps) if v]
     if runs:
-        figs.append(("views", VIEWS_CAPTION, view_comparison(runs)))
-    return figs
+        plan.append(("views", VIEWS_CAPTION, lambda: view_comparison(runs)))
+    return plan
 
 
 def _shared_cell(camp: Any) -> tuple[dict[str, float], list[str]]:
@@ -296,13 +355,21 @@ def _laws(d: Mapping[str, Any]) -> str:
 
 def render(data: Mapping[str, Any], out: Path) -> str:
     """The HTML page of report document ``data``; figure files are read from ``out``."""
+    return "".join(render_parts(data, out))
+
+
+def render_parts(data: Mapping[str, Any], out: Path) -> Iterator[str]:
+    """The pieces of :func:`render`, each figure read and encoded only when its piece is asked for."""
     title = f"granseg calibration: {Path(data['campaign']).name or data['campaign']}"
     prov = data.get("provenance") or {"input": data["campaign"], "granseg_version": data["granseg_version"],
                                       "created": data["created"], "command": None, "synthetic": False}
-    return page(title + (" (SYNTHETIC data)" if prov.get("synthetic") else ""), "".join([
-        f"<h1>{esc(title)}</h1>", provenance_section(prov),
-        f"<p class='meta'>{len(data['experiments'])} experiments. "
-        "All numbers are in report.json beside this page.</p>",
-        _summary(data), _experiments(data), _factorial(data), _per_experiment(data), _laws(data),
-        views_section(data.get("views", [])), figures(data["figures"], out),
-    ]))
+
+    def body() -> Iterator[str]:
+        yield from (f"<h1>{esc(title)}</h1>", provenance_section(prov),
+                    f"<p class='meta'>{len(data['experiments'])} experiments. "
+                    "All numbers are in report.json beside this page.</p>",
+                    _summary(data), _experiments(data), _factorial(data), _per_experiment(data), _laws(data),
+                    views_section(data.get("views", [])))
+        yield from figure_parts(data["figures"], out)
+
+    return page_parts(title + (" (SYNTHETIC data)" if prov.get("synthetic") else ""), body())

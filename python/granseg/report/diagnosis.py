@@ -10,7 +10,9 @@ The page is rendered from the JSON document (:func:`render`), in the same
 style as the calibration page (:mod:`granseg.report.html`). It opens with the
 provenance (input, granseg version, UTC date, command line) and, for data not
 measured in a laboratory, a SYNTHETIC banner (:mod:`granseg.report.provenance`).
-Nothing existing is replaced unless ``force``.
+Nothing existing is replaced unless ``force``; the page, its JSON and figures
+are written into a hidden ``.DIR.*.partial`` folder and moved into place at
+the end, so a failure leaves no half report.
 
 Example::
 
@@ -25,7 +27,7 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from granseg._io import atomic_write_text, check_writable, prepare_output_dir, save_json
+from granseg._io import atomic_write_text, check_output_dir, check_writable, save_json, staged_output_dir
 from granseg.diagnosis.selection import GAIN_THRESHOLD
 from granseg.plot.diagnosis import FIGURES
 from granseg.report.html import (
@@ -87,14 +89,17 @@ def _captions(r: Mapping[str, Any]) -> dict[str, str]:
 
 
 def _write(d: Diagnosis, out: str | os.PathLike, force: bool, prov: Mapping[str, Any]) -> Path:
-    out = prepare_output_dir(out, OUTPUTS, force, folders=["figures"])
+    out = check_output_dir(out, OUTPUTS, force)
     result = {**d.result, "provenance": dict(prov)}
     captions = _captions(result)
-    drawn = [(name, captions[name], draw(d)) for name, draw in FIGURES.items()]
-    figs = save_figures([(n, c, f) for n, c, f in drawn if f is not None], out, force=force)
-    save_json(out / "diagnosis.json", result, force=force)
-    text = render(result, figs, out)
-    return atomic_write_text(out / "index.html", text, force=force)
+    # one figure at a time, into a hidden folder moved into place at the end (nothing half written)
+    drawn = ((name, captions[name], fig) for name, draw in FIGURES.items() if (fig := draw(d)) is not None)
+    with staged_output_dir(out, OUTPUTS, force, folders=["figures"]) as stage:
+        figs = save_figures(drawn, stage)
+        save_json(stage / "diagnosis.json", result)
+        text = render(result, figs, stage)
+        atomic_write_text(stage / "index.html", text)
+    return out / "index.html"
 
 
 def write_report(d: Diagnosis, out: str | os.PathLike, *, force: bool = False, command: str | None = None,

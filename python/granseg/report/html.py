@@ -1,9 +1,11 @@
 """The HTML pieces both report pages are made of: style, script, numbers, tables, figures.
 
 A page is :func:`page` (title + body, with :data:`CSS` and :data:`SCRIPT`);
-its figures are saved by :func:`save_figures` (PNG + PDF beside the page) and
-embedded by :func:`figures` as base64 PNG, each with links to its files, so
-the page opens offline. The script counts the figures the browser decoded and
+its figures are saved by :func:`save_figures` (PNG + PDF beside the page, one
+figure at a time) and embedded by :func:`figures` as base64 PNG, each with
+links to its files, so the page opens offline. A large page is written piece
+by piece (:func:`page_parts`, :func:`figure_parts`, :func:`write_page`), never
+held whole. The script counts the figures the browser decoded and
 writes the count into ``<body data-figures-loaded="N/M">`` so that a headless
 browser test can see what a user would.
 """
@@ -13,16 +15,18 @@ from __future__ import annotations
 import base64
 import html
 import re
-from collections.abc import Callable, Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 from matplotlib.figure import Figure
 
-from granseg.plot.base import pm_text, save_figure
+from granseg._io import atomic_write
+from granseg.plot.base import pm_text, release, save_figure
 
 __all__ = ["CSS", "SCRIPT", "esc", "num", "nums", "pm", "pm_text", "tidy_pm", "yesno", "table", "figures",
-           "save_figures", "page", "views_section", "provenance_section"]
+           "figure_parts", "save_figures", "page", "page_parts", "write_page", "views_section",
+           "provenance_section"]
 
 CSS = """
 body{font:15px/1.45 system-ui,-apple-system,"Segoe UI",sans-serif;color:#1d1d1f;margin:0;background:#fafafa}
@@ -104,34 +108,56 @@ def table(head: Sequence[str], rows: Iterable[Sequence[str]], classes: Sequence[
     return f'<div class="scroll"><table><tr>{th}</tr>{"".join(body)}</table></div>'
 
 
-def save_figures(figs: Sequence[tuple[str, str, Figure]], out: Path, *, force: bool = False,
-                 log: Callable[[str], None] | None = None) -> list[dict[str, str]]:
-    """Save each ``(stem, caption, figure)`` as ``out/figures/STEM.png`` and ``.pdf``.
+def save_figures(figs: Iterable[tuple[Any, ...]], out: Path, *, force: bool = False,
+                 log: Callable[[str], None] | None = None, total: int | None = None,
+                 formats: tuple[str, ...] = ("png", "pdf")) -> list[dict[str, str]]:
+    """Save each ``(stem, caption, figure[, formats])`` as ``out/figures/STEM.png`` and ``.pdf``.
 
-    Returns the page's figure list: id, caption and the files relative to ``out``.
+    One figure at a time: each is drawn (``figure`` may be a function of no
+    arguments that makes it, called only now), saved and released
+    (:func:`granseg.plot.base.release`) before the next is made, so memory
+    does not grow with the number of figures (``figs`` may be a generator).
+    A fourth item chooses that figure's files (default ``formats``).
+    ``total`` is the count shown in the progress lines of ``log``.
+
+    Returns the page's figure list: id, caption and the files relative to ``out``
+    (``png``; ``pdf`` when one was written).
     """
     entries = []
-    for n, (stem, caption, fig) in enumerate(figs, 1):
-        png, pdf = save_figure(fig, out / "figures" / stem, force=force)
-        entries.append({"id": stem, "caption": caption, "png": f"figures/{png.name}",
-                        "pdf": f"figures/{pdf.name}"})
+    for n, (stem, caption, fig, *rest) in enumerate(figs, 1):
+        if callable(fig) and not isinstance(fig, Figure):
+            fig = fig()
+        try:
+            paths = save_figure(fig, out / "figures" / stem, force=force, formats=rest[0] if rest else formats)
+        finally:
+            release(fig)
+            del fig
+        entry = {"id": stem, "caption": caption}
+        entry.update({p.suffix[1:]: f"figures/{p.name}" for p in paths})
+        entries.append(entry)
         if log is not None:
-            log(f"figure {n}/{len(figs)}: {png.name}")
+            log(f"figure {n}/{total or '?'}: {paths[0].name}")
     return entries
 
 
-def figures(entries: Sequence[Mapping[str, str]], out: Path, heading: str = "Figures") -> str:
-    """A section of numbered figures (entries of :func:`save_figures`), PNGs read from ``out``."""
-    parts = [f"<h2>{esc(heading)}</h2>"]
+def figure_parts(entries: Sequence[Mapping[str, str]], out: Path, heading: str = "Figures") -> Iterator[str]:
+    """The pieces of :func:`figures`, one figure at a time (each PNG read and encoded only when its
+    piece is asked for, so a page of hundreds of figures is written without holding them all)."""
+    yield f"<h2>{esc(heading)}</h2>"
     for n, fig in enumerate(entries, 1):
         raw = (out / fig["png"]).read_bytes()
         width = int.from_bytes(raw[16:20], "big") // 2  # PNG IHDR width; shown at 2x density
         data = base64.b64encode(raw).decode("ascii")
-        parts.append(
-            f'<figure id="{esc(fig["id"])}"><img class="fig" width="{width}" alt="{esc(fig["caption"])}" '
-            f'src="data:image/png;base64,{data}"><figcaption>Figure {n}. {esc(fig["caption"])} '
-            f'(<a href="{esc(fig["pdf"])}">PDF</a>, <a href="{esc(fig["png"])}">PNG</a>)</figcaption></figure>')
-    return "".join(parts)
+        del raw
+        links = [f'<a href="{esc(fig[k])}">{k.upper()}</a>' for k in ("pdf", "png") if fig.get(k)]
+        yield (f'<figure id="{esc(fig["id"])}"><img class="fig" width="{width}" alt="{esc(fig["caption"])}" '
+               f'src="data:image/png;base64,{data}"><figcaption>Figure {n}. {esc(fig["caption"])} '
+               f'({", ".join(links)})</figcaption></figure>')
+
+
+def figures(entries: Sequence[Mapping[str, str]], out: Path, heading: str = "Figures") -> str:
+    """A section of numbered figures (entries of :func:`save_figures`), PNGs read from ``out``."""
+    return "".join(figure_parts(entries, out, heading))
 
 
 def views_section(rows: Sequence[Mapping[str, Any]]) -> str:
@@ -179,9 +205,28 @@ def provenance_section(prov: Mapping[str, Any] | None) -> str:
     return "".join(parts)
 
 
+def page_parts(title: str, body: Iterable[str]) -> Iterator[str]:
+    """The pieces of :func:`page`, for writing a large page piece by piece (:func:`write_page`)."""
+    yield (f'<!DOCTYPE html><html lang="en"><head><meta charset="utf-8">'
+           f'<meta name="viewport" content="width=device-width,initial-scale=1">'
+           f"<title>{esc(title)}</title><style>{CSS}</style><script>{SCRIPT}</script></head>"
+           f"<body><main>")
+    yield from body
+    yield "</main></body></html>\n"
+
+
 def page(title: str, body: str) -> str:
     """The whole HTML document: ``title`` (plain text) and ``body`` (HTML) in granseg's style."""
-    return (f'<!DOCTYPE html><html lang="en"><head><meta charset="utf-8">'
-            f'<meta name="viewport" content="width=device-width,initial-scale=1">'
-            f"<title>{esc(title)}</title><style>{CSS}</style><script>{SCRIPT}</script></head>"
-            f"<body><main>{body}</main></body></html>\n")
+    return "".join(page_parts(title, [body]))
+
+
+def write_page(path: Path, parts: Iterable[str], *, force: bool = False) -> Path:
+    """Write the pieces of a page (:func:`page_parts`) to ``path`` atomically, one at a time."""
+
+    def write(tmp: Path) -> None:
+        # a path that is not valid UTF-8 (lone surrogates) is written escaped, as atomic_write_text does
+        with open(tmp, "w", encoding="utf-8", errors="backslashreplace") as fh:
+            for part in parts:
+                fh.write(part)
+
+    return atomic_write(path, write, force=force)
