@@ -298,6 +298,29 @@ def test_cli_writes_both_views_and_the_profile_and_keeps_existing_files(tmp_path
     assert not fresh.exists()
 
 
+def test_cli_finds_a_clash_before_reducing_the_runs(tmp_path, capsys, monkeypatch):
+    """Issue 14: the products' names are known once the runs are read, so a clash is refused
+    before the (long) reduction of their snapshots."""
+    from granseg.cli import main
+    from granseg.dem.run import DemRun
+
+    a = _run_dir(tmp_path, name="a")
+    out = tmp_path / "campaign"
+    (out / "velocity").mkdir(parents=True)
+    (out / "velocity" / "a.json").write_text("mine")
+
+    def refuse(*args, **kwargs):
+        raise AssertionError("the runs were reduced before the outputs were checked")
+
+    monkeypatch.setattr(DemRun, "products", refuse)
+    assert main(["dem", str(a), "--out", str(out)]) == 2
+    assert "a.json" in capsys.readouterr().err
+    (tmp_path / "a_file").write_text("x")
+    assert main(["dem", str(a), "--out", str(tmp_path / "a_file" / "c")]) == 2
+    assert "a_file is a file" in capsys.readouterr().err
+    assert (out / "velocity" / "a.json").read_text() == "mine"
+
+
 def test_the_depth_mean_check_flags_a_wall_view_that_favours_heavy_grains(tmp_path):
     """Heavy grains gather at the side walls over the run while the bed keeps its grains: the bulk
     keeps its depth-mean heavy share exactly, the wall view drifts, and its quality record says so."""

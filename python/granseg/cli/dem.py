@@ -27,7 +27,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from granseg.dem.run import load_run, write_products
+    from granseg.dem.run import check_products, load_run, write_products
 
     views = ("bulk", "wall") if args.view == "both" else (args.view,)
     runs = [load_run(r, config=args.config) for r in args.runs]  # every run is read before anything is written
@@ -35,6 +35,8 @@ def run(args: argparse.Namespace) -> int:
     dupes = sorted({n for n in names if names.count(n) > 1})
     if dupes:
         raise ValueError(f"two runs share the name {dupes[0]!r}; give each run its own directory")
+    check_products(args.out, [f"{f}/{n}.{ext}" for n in names
+                              for f, ext in [*((v, "npz") for v in views), ("velocity", "json")]], args.force)
     products = {}
     for k, r in enumerate(runs, 1):  # everything is computed before anything is written
         print(f"[{k}/{len(runs)}] {r.name}: {len(r.snapshots)} snapshots over {r.t[-1]:.3g} s, "

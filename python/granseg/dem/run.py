@@ -273,6 +273,20 @@ class DemRun:
         return write_products(out, self.products(views, velocity, t_from), force)
 
 
+def check_products(out: str | os.PathLike, names: Sequence[str], force: bool = False) -> None:
+    """Check, before the runs are reduced, that ``out`` can take products ``names`` (relative
+    paths such as ``bulk/NAME.npz``): no clash unless ``force``, a folder that can be made."""
+    from granseg._io import check_creatable, check_output_dir
+
+    out = Path(out)
+    check_creatable(out)
+    for folder in sorted({Path(n).parent for n in names}):
+        if (out / folder).is_dir():
+            check_output_dir(out / folder, [Path(n).name for n in names if Path(n).parent == folder], force)
+        else:
+            check_creatable(out / folder)
+
+
 def write_products(out: str | os.PathLike, products: Mapping[str, Any], force: bool = False) -> list[Path]:
     """Write maps and profiles (anything with ``.save(path, force)``) by their relative paths
     into ``out``: every clash is refused before the first file is written."""
