@@ -5,7 +5,12 @@
 //! three implicit stages share the diagonal coefficient gamma, so one
 //! factorisation of M = I - h gamma J serves the whole step, and the first
 //! stage is the last stage of the previous step (FSAL). Third order cut the
-//! step count by ~2x against TR-BDF2 at equal layer-map accuracy.
+//! step count by ~2x against TR-BDF2 at equal layer-map accuracy. The
+//! fourth- and fifth-order members of the family (ARK4(3)6L[2]SA and
+//! ARK5(4)8L[2]SA, `Scheme::Esdirk4` / `Esdirk5`, through `integrate_scheme`)
+//! take fewer steps at equal accuracy but more stages per step, and were no
+//! faster at the 1e-3 the layer maps need (`examples/work_precision.rs`,
+//! BENCHMARKS.md), so the third-order scheme stays the default.
 //!
 //! Each stage is solved by simplified Newton with the tridiagonal Jacobian of
 //! `flux::Operator` (upwind + diffusion part). The overburden pressure is kept
@@ -63,51 +68,235 @@ pub struct Stats {
     pub max_clip: f64,
 }
 
-/// Butcher tableau of an explicit-first-stage SDIRK.
+/// Butcher tableau of a stiffly accurate ESDIRK (explicit first stage, one
+/// diagonal coefficient gamma, last row = weights, last node = 1): `a` holds
+/// the lower triangle by rows, diagonal included (row 0 is the explicit stage).
 pub struct Tableau {
+    pub name: &'static str,
     pub gamma: f64,
-    pub a: [[f64; 4]; 4],
-    pub b: [f64; 4],
-    pub b_hat: [f64; 4],
-    pub c: [f64; 4],
+    pub a: &'static [&'static [f64]],
+    pub b: &'static [f64],
+    pub b_hat: &'static [f64],
+    pub c: &'static [f64],
+    /// Order q of the embedded solution: the error estimate is O(h^(q+1)),
+    /// so the step-size control uses the exponent 1 / (q + 1).
+    pub embedded_order: u32,
+}
+
+impl Tableau {
+    pub fn stages(&self) -> usize {
+        self.b.len()
+    }
 }
 
 const G: f64 = 1767732205903.0 / 4055673282236.0;
+
 /// ARK3(2)4L[2]SA, ESDIRK part (Kennedy & Carpenter 2003), as SUNDIALS
-/// ARKODE tabulates it.
+/// ARKODE tabulates it. The default.
 pub const ESDIRK3: Tableau = Tableau {
+    name: "esdirk3",
     gamma: G,
-    a: [
-        [0.0, 0.0, 0.0, 0.0],
-        [G, G, 0.0, 0.0],
-        [
+    a: &[
+        &[0.0],
+        &[G, G],
+        &[
             2746238789719.0 / 10658868560708.0,
             -640167445237.0 / 6845629431997.0,
             G,
-            0.0,
         ],
-        [
+        &[
             1471266399579.0 / 7840856788654.0,
             -4482444167858.0 / 7529755066697.0,
             11266239266428.0 / 11593286722821.0,
             G,
         ],
     ],
-    b: [
+    b: &[
         1471266399579.0 / 7840856788654.0,
         -4482444167858.0 / 7529755066697.0,
         11266239266428.0 / 11593286722821.0,
         G,
     ],
-    b_hat: [
+    b_hat: &[
         2756255671327.0 / 12835298489170.0,
         -10771552573575.0 / 22201958757719.0,
         9247589265047.0 / 10645013368117.0,
         2193209047091.0 / 5459859503100.0,
     ],
-    c: [0.0, 1767732205903.0 / 2027836641118.0, 3.0 / 5.0, 1.0],
+    c: &[0.0, 1767732205903.0 / 2027836641118.0, 3.0 / 5.0, 1.0],
+    embedded_order: 2,
 };
-const STAGES: usize = 4;
+
+/// ARK4(3)6L[2]SA, ESDIRK part (Kennedy & Carpenter 2003; SUNDIALS'
+/// ARK436L2SA_DIRK_6_3_4): order 4 with an order-3 embedding, six stages.
+pub const ESDIRK4: Tableau = Tableau {
+    name: "esdirk4",
+    gamma: 0.25,
+    a: &[
+        &[0.0],
+        &[0.25, 0.25],
+        &[8611.0 / 62500.0, -1743.0 / 31250.0, 0.25],
+        &[
+            5012029.0 / 34652500.0,
+            -654441.0 / 2922500.0,
+            174375.0 / 388108.0,
+            0.25,
+        ],
+        &[
+            15267082809.0 / 155376265600.0,
+            -71443401.0 / 120774400.0,
+            730878875.0 / 902184768.0,
+            2285395.0 / 8070912.0,
+            0.25,
+        ],
+        &[
+            82889.0 / 524892.0,
+            0.0,
+            15625.0 / 83664.0,
+            69875.0 / 102672.0,
+            -2260.0 / 8211.0,
+            0.25,
+        ],
+    ],
+    b: &[
+        82889.0 / 524892.0,
+        0.0,
+        15625.0 / 83664.0,
+        69875.0 / 102672.0,
+        -2260.0 / 8211.0,
+        0.25,
+    ],
+    b_hat: &[
+        4586570599.0 / 29645900160.0,
+        0.0,
+        178811875.0 / 945068544.0,
+        814220225.0 / 1159782912.0,
+        -3700637.0 / 11593932.0,
+        61727.0 / 225920.0,
+    ],
+    c: &[0.0, 0.5, 83.0 / 250.0, 31.0 / 50.0, 17.0 / 20.0, 1.0],
+    embedded_order: 3,
+};
+
+/// ARK5(4)8L[2]SA, ESDIRK part (Kennedy & Carpenter 2003; SUNDIALS'
+/// ARK548L2SA_DIRK_8_4_5): order 5 with an order-4 embedding, eight stages.
+pub const ESDIRK5: Tableau = Tableau {
+    name: "esdirk5",
+    gamma: 41.0 / 200.0,
+    a: &[
+        &[0.0],
+        &[41.0 / 200.0, 41.0 / 200.0],
+        &[
+            41.0 / 400.0,
+            -567603406766.0 / 11931857230679.0,
+            41.0 / 200.0,
+        ],
+        &[
+            683785636431.0 / 9252920307686.0,
+            0.0,
+            -110385047103.0 / 1367015193373.0,
+            41.0 / 200.0,
+        ],
+        &[
+            3016520224154.0 / 10081342136671.0,
+            0.0,
+            30586259806659.0 / 12414158314087.0,
+            -22760509404356.0 / 11113319521817.0,
+            41.0 / 200.0,
+        ],
+        &[
+            218866479029.0 / 1489978393911.0,
+            0.0,
+            638256894668.0 / 5436446318841.0,
+            -1179710474555.0 / 5321154724896.0,
+            -60928119172.0 / 8023461067671.0,
+            41.0 / 200.0,
+        ],
+        &[
+            1020004230633.0 / 5715676835656.0,
+            0.0,
+            25762820946817.0 / 25263940353407.0,
+            -2161375909145.0 / 9755907335909.0,
+            -211217309593.0 / 5846859502534.0,
+            -4269925059573.0 / 7827059040749.0,
+            41.0 / 200.0,
+        ],
+        &[
+            -872700587467.0 / 9133579230613.0,
+            0.0,
+            0.0,
+            22348218063261.0 / 9555858737531.0,
+            -1143369518992.0 / 8141816002931.0,
+            -39379526789629.0 / 19018526304540.0,
+            32727382324388.0 / 42900044865799.0,
+            41.0 / 200.0,
+        ],
+    ],
+    b: &[
+        -872700587467.0 / 9133579230613.0,
+        0.0,
+        0.0,
+        22348218063261.0 / 9555858737531.0,
+        -1143369518992.0 / 8141816002931.0,
+        -39379526789629.0 / 19018526304540.0,
+        32727382324388.0 / 42900044865799.0,
+        41.0 / 200.0,
+    ],
+    b_hat: &[
+        -975461918565.0 / 9796059967033.0,
+        0.0,
+        0.0,
+        78070527104295.0 / 32432590147079.0,
+        -548382580838.0 / 3424219808633.0,
+        -33438840321285.0 / 15594753105479.0,
+        3629800801594.0 / 4656183773603.0,
+        4035322873751.0 / 18575991585200.0,
+    ],
+    c: &[
+        0.0,
+        41.0 / 100.0,
+        2935347310677.0 / 11292855782101.0,
+        1426016391358.0 / 7196633302097.0,
+        92.0 / 100.0,
+        24.0 / 100.0,
+        3.0 / 5.0,
+        1.0,
+    ],
+    embedded_order: 4,
+};
+
+/// The time-stepping schemes: ESDIRK3 is the default (issue 15's
+/// work-precision comparison, BENCHMARKS.md, says why).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Scheme {
+    #[default]
+    Esdirk3,
+    Esdirk4,
+    Esdirk5,
+}
+
+impl Scheme {
+    pub fn tableau(self) -> &'static Tableau {
+        match self {
+            Scheme::Esdirk3 => &ESDIRK3,
+            Scheme::Esdirk4 => &ESDIRK4,
+            Scheme::Esdirk5 => &ESDIRK5,
+        }
+    }
+
+    /// The scheme named `name` (`esdirk3`, `esdirk4`, `esdirk5`).
+    pub fn from_name(name: &str) -> Result<Scheme, SolveError> {
+        [Scheme::Esdirk3, Scheme::Esdirk4, Scheme::Esdirk5]
+            .into_iter()
+            .find(|s| s.tableau().name == name)
+            .ok_or_else(|| {
+                SolveError::InvalidInput(format!(
+                    "scheme = {name:?} is not one of esdirk3, esdirk4, esdirk5"
+                ))
+            })
+    }
+}
+
 const NEWTON_MAX: usize = 8;
 const NEWTON_KAPPA: f64 = 0.1;
 const MIN_STEP: f64 = 1e-10;
@@ -323,7 +512,7 @@ fn wrms(x: &[f64], scale: &[f64]) -> f64 {
 /// Run state and workspace, allocated once per run.
 struct Work<M: NewtonMatrix> {
     y: Vec<f64>,
-    /// stage derivatives; k[0] = f(t, y), k[STAGES - 1] = f(t + h, y_new)
+    /// stage derivatives; k[0] = f(t, y), k[last] = f(t + h, y_new)
     k: Vec<Vec<f64>>,
     y_new: Vec<f64>,
     base: Vec<f64>,
@@ -343,11 +532,11 @@ struct Work<M: NewtonMatrix> {
 }
 
 impl<M: NewtonMatrix> Work<M> {
-    fn new(n: usize, matrix: M) -> Self {
+    fn new(n: usize, matrix: M, stages: usize) -> Self {
         let z = || vec![0.0; n];
         Work {
             y: z(),
-            k: (0..STAGES).map(|_| z()).collect(),
+            k: (0..stages).map(|_| z()).collect(),
             y_new: z(),
             base: z(),
             fy: z(),
@@ -460,23 +649,24 @@ fn predict_stage<M: NewtonMatrix>(w: &mut Work<M>, s: usize, h: f64, tab: &Table
 }
 
 /// One ESDIRK step of size h from (t, w.y) with w.k[0] = f(t, y). On success
-/// w.y_new / w.k[STAGES - 1] hold the new state and its derivative.
+/// w.y_new / w.k[last] hold the new state and its derivative.
+#[allow(clippy::too_many_arguments)]
 fn attempt_step<M: NewtonMatrix>(
     op: &mut Operator,
     w: &mut Work<M>,
+    tab: &Tableau,
     t: f64,
     h: f64,
     tol: &Tolerances,
     fresh_jac: bool,
     stats: &mut Stats,
 ) -> Attempt {
-    let tab = &ESDIRK3;
     let n = w.y.len();
     let hg = h * tab.gamma;
     for i in 0..n {
         w.scale[i] = tol.atol + tol.rtol * w.y[i].abs();
     }
-    for s in 1..STAGES {
+    for s in 1..tab.stages() {
         // explicit part of the stage
         for i in 0..n {
             let mut acc = w.y[i];
@@ -655,10 +845,29 @@ pub fn integrate_with_stop<M: NewtonMatrix>(
     out: &mut impl Output,
     stop: &AtomicBool,
 ) -> Result<Stats, SolveError> {
+    integrate_scheme(p, n_cells, t_out, tol, Scheme::default(), matrix, out, stop)
+}
+
+/// `integrate_with_stop` with a chosen time-stepping scheme.
+#[allow(clippy::too_many_arguments)]
+pub fn integrate_scheme<M: NewtonMatrix>(
+    p: &Params,
+    n_cells: usize,
+    t_out: &[f64],
+    tol: Tolerances,
+    scheme: Scheme,
+    matrix: M,
+    out: &mut impl Output,
+    stop: &AtomicBool,
+) -> Result<Stats, SolveError> {
     p.validate()?;
     validate_run(n_cells, t_out, &tol)?;
+    let tab = scheme.tableau();
+    let k_last = tab.stages() - 1;
+    // the step-size exponent of an error estimate of order q + 1
+    let expo = -1.0 / (tab.embedded_order as f64 + 1.0);
     let mut op = Operator::new(*p, n_cells);
-    let mut w = Work::new(n_cells, matrix);
+    let mut w = Work::new(n_cells, matrix, tab.stages());
     let mut stats = Stats::default();
     w.y = initial_condition(p, &op.grid);
     let mut next = 0;
@@ -684,7 +893,7 @@ pub fn integrate_with_stop<M: NewtonMatrix>(
         if last {
             h = t_end - t;
         }
-        match attempt_step(&mut op, &mut w, t, h, &tol, fresh_jac, &mut stats) {
+        match attempt_step(&mut op, &mut w, tab, t, h, &tol, fresh_jac, &mut stats) {
             Attempt::NewtonFailed(reason) => {
                 stats.newton_failures += 1;
                 stats.rejected += 1;
@@ -700,7 +909,7 @@ pub fn integrate_with_stop<M: NewtonMatrix>(
             }
             Attempt::ErrorTooLarge(e) => {
                 stats.rejected += 1;
-                h *= (0.9 * e.powf(-1.0 / 3.0)).clamp(0.1, 0.5);
+                h *= (0.9 * e.powf(expo)).clamp(0.1, 0.5);
                 fresh_jac = false;
                 if h < MIN_STEP {
                     return Err(SolveError::NewtonFailure {
@@ -715,9 +924,9 @@ pub fn integrate_with_stop<M: NewtonMatrix>(
                 if clip > 0.0 {
                     stats.clipped += 1;
                     stats.max_clip = stats.max_clip.max(clip);
-                    op.rhs(t_new, &w.y_new, &mut w.k[STAGES - 1]);
+                    op.rhs(t_new, &w.y_new, &mut w.k[k_last]);
                 }
-                hermite_coefficients(&mut w.herm, &w.y, &w.k[0], &w.y_new, &w.k[STAGES - 1], h);
+                hermite_coefficients(&mut w.herm, &w.y, &w.k[0], &w.y_new, &w.k[k_last], h);
                 // Layer outputs: the interpolant is linear in its coefficients, so its layer
                 // means are the interpolant of the coefficients' layer means, made once per
                 // step. Only when no cell can leave [0, 1] within the step (nothing to clip).
@@ -766,10 +975,10 @@ pub fn integrate_with_stop<M: NewtonMatrix>(
                 w.y_prev.copy_from_slice(&w.y);
                 w.h_prev = Some(h);
                 std::mem::swap(&mut w.y, &mut w.y_new);
-                w.k.swap(0, STAGES - 1);
+                w.k.swap(0, k_last);
                 t = t_new;
                 stats.steps += 1;
-                h *= (0.9 * e.max(1e-10).powf(-1.0 / 3.0)).clamp(0.2, 4.0);
+                h *= (0.9 * e.max(1e-10).powf(expo)).clamp(0.2, 4.0);
                 fresh_jac = true;
             }
         }
@@ -1006,27 +1215,89 @@ mod tests {
         assert!(simulate_stoppable(&p, 60, &[0.0], Tolerances::default(), &stop).is_ok());
     }
 
-    #[test]
-    fn tableau_meets_the_order_conditions() {
-        let t = &ESDIRK3;
-        let dot = |x: &[f64; 4], y: &[f64; 4]| x.iter().zip(y).map(|(a, b)| a * b).sum::<f64>();
-        let c2: [f64; 4] = std::array::from_fn(|i| t.c[i] * t.c[i]);
-        let ac: [f64; 4] = std::array::from_fn(|i| dot(&t.a[i], &t.c));
-        for i in 0..4 {
-            assert!(
-                (t.a[i].iter().sum::<f64>() - t.c[i]).abs() < 1e-12,
-                "row sum {i}"
-            );
+    /// The classical order conditions of a Runge-Kutta tableau (b, A, c) up to
+    /// order `p` (trees of order <= 5), as (name, residual).
+    fn order_residuals(b: &[f64], t: &Tableau, p: u32) -> Vec<(String, f64)> {
+        let n = b.len();
+        let av = |v: &[f64]| -> Vec<f64> {
+            (0..n)
+                .map(|i| t.a[i].iter().zip(v).map(|(a, x)| a * x).sum())
+                .collect()
+        };
+        let mul =
+            |x: &[f64], y: &[f64]| -> Vec<f64> { x.iter().zip(y).map(|(a, b)| a * b).collect() };
+        let bdot = |v: &[f64]| -> f64 { b.iter().zip(v).map(|(a, x)| a * x).sum() };
+        let c = t.c.to_vec();
+        let one = vec![1.0; n];
+        let c2 = mul(&c, &c);
+        let c3 = mul(&c2, &c);
+        let ac = av(&c);
+        let ac2 = av(&c2);
+        let aac = av(&ac);
+        let mut out = vec![("1".to_string(), bdot(&one) - 1.0)];
+        if p >= 2 {
+            out.push(("c".into(), bdot(&c) - 0.5));
         }
-        // order 3 for b, order 2 for b_hat
-        assert!((t.b.iter().sum::<f64>() - 1.0).abs() < 1e-12);
-        assert!((dot(&t.b, &t.c) - 0.5).abs() < 1e-12);
-        assert!((dot(&t.b, &c2) - 1.0 / 3.0).abs() < 1e-12);
-        assert!((dot(&t.b, &ac) - 1.0 / 6.0).abs() < 1e-12);
-        assert!((t.b_hat.iter().sum::<f64>() - 1.0).abs() < 1e-12);
-        assert!((dot(&t.b_hat, &t.c) - 0.5).abs() < 1e-12);
-        // stiffly accurate
-        assert_eq!(t.b, t.a[3]);
+        if p >= 3 {
+            out.push(("c2".into(), bdot(&c2) - 1.0 / 3.0));
+            out.push(("Ac".into(), bdot(&ac) - 1.0 / 6.0));
+        }
+        if p >= 4 {
+            out.push(("c3".into(), bdot(&c3) - 0.25));
+            out.push(("cAc".into(), bdot(&mul(&c, &ac)) - 1.0 / 8.0));
+            out.push(("Ac2".into(), bdot(&ac2) - 1.0 / 12.0));
+            out.push(("AAc".into(), bdot(&aac) - 1.0 / 24.0));
+        }
+        if p >= 5 {
+            out.push(("c4".into(), bdot(&mul(&c3, &c)) - 0.2));
+            out.push(("c2Ac".into(), bdot(&mul(&c2, &ac)) - 0.1));
+            out.push(("Ac3".into(), bdot(&av(&c3)) - 0.05));
+            out.push(("AAAc".into(), bdot(&av(&aac)) - 1.0 / 120.0));
+            out.push(("cAAc".into(), bdot(&mul(&c, &aac)) - 1.0 / 30.0));
+            out.push(("(Ac)2".into(), bdot(&mul(&ac, &ac)) - 0.05));
+            out.push(("cAc2".into(), bdot(&mul(&c, &ac2)) - 1.0 / 15.0));
+            out.push(("AcAc".into(), bdot(&av(&mul(&c, &ac))) - 1.0 / 40.0));
+            out.push(("AAc2".into(), bdot(&av(&ac2)) - 1.0 / 60.0));
+        }
+        out
+    }
+
+    #[test]
+    fn tableaus_meet_their_order_conditions() {
+        // a typo in one of the long rationals breaks one of these
+        for (t, order) in [(&ESDIRK3, 3), (&ESDIRK4, 4), (&ESDIRK5, 5)] {
+            let n = t.stages();
+            assert_eq!(
+                (t.a.len(), t.b_hat.len(), t.c.len()),
+                (n, n, n),
+                "{}",
+                t.name
+            );
+            for i in 0..n {
+                assert_eq!(t.a[i].len(), i + 1, "{} row {i}", t.name);
+                let sum: f64 = t.a[i].iter().sum();
+                assert!((sum - t.c[i]).abs() < 1e-12, "{} row sum {i}", t.name);
+                if i > 0 {
+                    assert_eq!(t.a[i][i], t.gamma, "{} diagonal {i}", t.name);
+                }
+            }
+            assert_eq!(t.b, t.a[n - 1], "{}: stiffly accurate", t.name);
+            assert_eq!(t.c[n - 1], 1.0);
+            for (name, r) in order_residuals(t.b, t, order) {
+                assert!(r.abs() < 1e-11, "{} order condition {name}: {r:e}", t.name);
+            }
+            let embedded = order_residuals(t.b_hat, t, t.embedded_order);
+            for (name, r) in embedded {
+                assert!(
+                    r.abs() < 1e-11,
+                    "{} embedded condition {name}: {r:e}",
+                    t.name
+                );
+            }
+            // the embedding is of exactly that order: some condition of the next fails
+            let next = order_residuals(t.b_hat, t, t.embedded_order + 1);
+            assert!(next.iter().any(|(_, r)| r.abs() > 1e-6), "{}", t.name);
+        }
     }
 
     #[test]
