@@ -69,6 +69,12 @@ def _params(overrides: Mapping[str, Any], where: str = "") -> dict[str, float]:
             out[name] = float(value)
         except (TypeError, ValueError):
             raise ValueError(f"{where}parameter {name} = {value!r} is not a number") from None
+        except OverflowError:  # an int beyond float's range, e.g. 10**400
+            raise ValueError(f"{where}parameter {name} = {value} is out of range (beyond any float)") from None
+    # the core checks v1 < v0 = omega(rpm) * D_out / 2 first: a bad rpm or D_out is named as itself
+    for name in ("rpm", "D_out"):
+        if not out[name] > 0:
+            raise ValueError(f"{where}parameter {name} = {out[name]} is out of range: must be > 0")
     try:
         _core.validate(out)
     except ValueError as exc:
@@ -79,8 +85,8 @@ def _params(overrides: Mapping[str, Any], where: str = "") -> dict[str, float]:
 def _times(t: Any, name: str = "t", n_cells: int | None = None) -> np.ndarray:
     try:
         arr = np.ascontiguousarray(t, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise ValueError(f"{name} must be an array of times in seconds") from None
+    except (TypeError, ValueError, OverflowError):
+        raise ValueError(f"{name} must be an array of finite times in seconds") from None
     if arr.ndim != 1 or arr.size == 0:
         raise ValueError(f"{name} must be a non-empty 1-D array of times in seconds, got shape {arr.shape}")
     if arr.size > MAX_OUTPUT_TIMES:  # before any check that copies it
@@ -111,12 +117,17 @@ def _solver_options(n_cells: Any, rtol: float | None, atol: float | None) -> tup
         raise ValueError(f"n_cells = {n_cells!r} must be an integer >= 15")
     if n_cells < 15:
         raise ValueError(f"n_cells = {n_cells} is out of range: must be >= 15 (one cell per layer at least)")
-    rtol = RTOL if rtol is None else float(rtol)
-    atol = ATOL if atol is None else float(atol)
+    if n_cells > 2**32:  # the core's own check names the bytes; this int would not even reach it
+        raise ValueError(f"n_cells = {n_cells} is out of range: must be <= {MAX_CELLS}")
+    tols = {}
     for name, v in (("rtol", rtol), ("atol", atol)):
+        try:
+            tols[name] = v = (RTOL if name == "rtol" else ATOL) if v is None else float(v)
+        except (TypeError, ValueError, OverflowError):
+            raise ValueError(f"{name} = {v!r} is not a number") from None
         if not (math.isfinite(v) and 0 < v < 1):
             raise ValueError(f"{name} = {v} is out of range: must be in (0, 1)")
-    return int(n_cells), rtol, atol
+    return int(n_cells), tols["rtol"], tols["atol"]
 
 
 def _call(fn, *args, **kwargs):
@@ -304,8 +315,8 @@ def _grid_points(grid: Mapping[str, Iterable[float]] | None) -> list[dict[str, f
         for v in vals:
             try:
                 fv = float(v)
-            except (TypeError, ValueError):
-                raise ValueError(f"grid: {name} value {v!r} is not a number") from None
+            except (TypeError, ValueError, OverflowError):
+                raise ValueError(f"grid: {name} value {v!r} is not a finite number") from None
             if not math.isfinite(fv):
                 raise ValueError(f"grid: {name} value {v!r} is not finite")
         keys.append(name)
@@ -365,6 +376,13 @@ def _run_chunk(payload: dict[str, Any]) -> tuple[list[np.ndarray], np.ndarray, l
     return [np.asarray(x) for x in layers], np.asarray(rmsd), [dict(s) for s in stats]
 
 
+def _mapping(value: Any, what: str) -> dict[str, Any]:
+    """``value`` as a dict of parameters; ValueError naming ``what`` if it is not a mapping."""
+    if not isinstance(value, Mapping):
+        raise ValueError(f"{what} must be a dict of model parameters, got {value!r}")
+    return dict(value)
+
+
 def _case_layers(n_layers: int | Sequence[int], n_cases: int) -> list[int]:
     """One layer count per case (each a whole number >= 1)."""
     values = [n_layers] * n_cases if np.ndim(n_layers) == 0 else list(n_layers)
@@ -419,7 +437,11 @@ def sweep(
     """
     if base is not None and cases is not None:
         raise ValueError("give either base= (one experiment) or cases= (several), not both")
-    case_list = [dict(base or {})] if cases is None else [dict(c) for c in cases]
+    case_list = [_mapping(base or {}, "base")] if cases is None else None
+    if case_list is None:
+        if isinstance(cases, Mapping | str | bytes) or not isinstance(cases, Iterable):
+            raise ValueError(f"cases must be a list of parameter dicts (one per experiment), got {cases!r}")
+        case_list = [_mapping(c, f"cases[{i}]") for i, c in enumerate(cases)]
     if not case_list:
         raise ValueError("cases is empty: give at least one experiment")
     points = _grid_points(grid)

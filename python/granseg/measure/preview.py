@@ -8,7 +8,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from granseg._io import atomic_path
+from granseg._io import atomic_path, cv2_path
 from granseg.measure.classify import AMBIGUOUS
 from granseg.measure.layers import N_LAYERS
 
@@ -33,8 +33,9 @@ def write_previews(directory: Path, result: Any, crops: dict[int, np.ndarray], f
         name = Path(result.frame_names[i]).stem.replace("#", "_")
         img = draw_preview(crops[i], result, i)
         path = directory / f"preview_{name}.png"
+        cv2_path(path)  # a name OpenCV cannot take is named as the preview's, not its temporary file's
         with atomic_path(path, force=force) as tmp:
-            if not cv2.imwrite(str(tmp), img):
+            if not cv2.imwrite(cv2_path(tmp), img):
                 raise OSError(f"{path}: could not write preview image")
         written.append(path)
     return written
