@@ -218,12 +218,6 @@ impl Params {
                 self.delta_over_h > 0.0,
                 "> 0",
             ),
-            (
-                "v1",
-                self.v1,
-                self.v1 < self.v0(),
-                "< v0 (the bottom-wall speed)",
-            ),
             ("b", self.b, self.b > 0.0, "> 0"),
             // a bed of fewer than two grains is no granular continuum (and
             // the initial interface, smoothed over one diameter, needs room)
@@ -248,6 +242,14 @@ impl Params {
             ("rpm", self.rpm, self.rpm > 0.0, "> 0"),
             ("D_in", self.d_in, self.d_in > 0.0, "> 0 m"),
             ("D_out", self.d_out, self.d_out > self.d_in, "> D_in"),
+            // after rpm and the diameters it is computed from, so that a bad rpm
+            // or D_out is named as itself, not as v1
+            (
+                "v1",
+                self.v1,
+                self.v1 < self.v0(),
+                "< v0 (the bottom-wall speed)",
+            ),
             (
                 "delta_drift",
                 self.delta_drift,

@@ -30,11 +30,26 @@ __all__ = [
     "atomic_path",
     "check_writable",
     "check_output_dir",
+    "cv2_path",
     "prepare_output_dir",
     "staged_output_dir",
     "save_json",
     "save_npz",
 ]
+
+
+def cv2_path(path: str | os.PathLike) -> str:
+    """``path`` as the text OpenCV's file functions take; ValueError naming it when it is not valid
+    UTF-8 (a name such as ``b"G-\\xff.png"``): OpenCV's imread, imwrite, VideoCapture and VideoWriter
+    end the process with a segmentation fault on such a name (issue 14)."""
+    text = os.fspath(path)
+    text = os.fsdecode(text) if isinstance(text, bytes) else text
+    try:
+        text.encode("utf-8")
+    except UnicodeEncodeError:
+        raise ValueError(f"{text.encode('utf-8', 'backslashreplace').decode()}: the path is not valid UTF-8, "
+                         "which OpenCV cannot open; rename the file or folder") from None
+    return text
 
 
 def check_writable(path: str | os.PathLike, force: bool = False) -> Path:

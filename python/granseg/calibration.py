@@ -340,6 +340,11 @@ def calibrate(
     t_start = time.perf_counter()
     if errors not in ERRORS:
         raise ValueError(f"errors = {errors!r}: choose one of {', '.join(ERRORS)}")
+    # a zero step makes the forward-difference Jacobian zero, and the fit's SVD fails on it
+    if isinstance(fd_rel, bool) or not isinstance(fd_rel, int | float) or not 0 < fd_rel <= 0.5:
+        raise ValueError(f"fd_rel = {fd_rel!r} must be a relative step in (0, 0.5]")
+    if isinstance(max_nfev, bool) or not isinstance(max_nfev, int) or max_nfev < 1:
+        raise ValueError(f"max_nfev = {max_nfev!r} must be a whole number >= 1")
     maps = as_maps(campaign)
     check_accepted(maps, accept_flagged)
     measured = _measured_velocity(velocity, maps, grid, velocity_shape, base)

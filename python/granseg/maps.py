@@ -315,7 +315,10 @@ def _text(source: str, key: str, value: Any) -> str:
     arr = np.asarray(value)
     if arr.shape != () or arr.dtype.kind not in "US":
         raise _fail(source, key, f"expected a string, got {value!r}")
-    text = str(arr.item() if arr.dtype.kind == "U" else arr.item().decode())
+    try:
+        text = str(arr.item() if arr.dtype.kind == "U" else arr.item().decode())
+    except UnicodeDecodeError as exc:
+        raise _fail(source, key, f"expected UTF-8 text, got bytes {arr.item()[:40]!r} ({exc.reason})") from None
     if key == "name" and not text.strip():
         raise _fail(source, key, "experiment name is empty")
     return text
@@ -442,6 +445,9 @@ def _quality(source: str, value: Any) -> str:
         raise _fail(source, "quality", f"not valid JSON ({exc})") from None
     if not isinstance(record, dict) or not isinstance(record.get("ok"), bool):
         raise _fail(source, "quality", 'expected a JSON object with a boolean "ok"')
+    checks = record.get("checks", {})
+    if not isinstance(checks, dict) or not all(isinstance(v, dict) for v in checks.values()):
+        raise _fail(source, "quality", '"checks" must be a JSON object of one object per check')
     return text
 
 

@@ -121,15 +121,15 @@ def _solver_options(n_cells: Any, rtol: float | None, atol: float | None) -> tup
     if not 15 <= n_cells < 2**63:
         raise ValueError(f"n_cells = {_short(n_cells)} is out of range: must be in 15..{MAX_CELLS} "
                          "(one cell per layer at least)")
-    try:
-        rtol = RTOL if rtol is None else float(rtol)
-        atol = ATOL if atol is None else float(atol)
-    except (TypeError, ValueError, OverflowError):
-        raise ValueError(f"rtol = {_short(rtol)}, atol = {_short(atol)}: each must be a number in (0, 1)") from None
+    tols = {}
     for name, v in (("rtol", rtol), ("atol", atol)):
+        try:
+            tols[name] = v = (RTOL if name == "rtol" else ATOL) if v is None else float(v)
+        except (TypeError, ValueError, OverflowError):
+            raise ValueError(f"{name} = {_short(v)} is not a number") from None
         if not (math.isfinite(v) and 0 < v < 1):
             raise ValueError(f"{name} = {v} is out of range: must be in (0, 1)")
-    return int(n_cells), rtol, atol
+    return int(n_cells), tols["rtol"], tols["atol"]
 
 
 def _call(fn, *args, **kwargs):
@@ -414,14 +414,21 @@ def _run_chunk(payload: dict[str, Any]) -> tuple[list[np.ndarray], np.ndarray, l
     return [np.asarray(x) for x in layers], np.asarray(rmsd), [dict(s) for s in stats]
 
 
+def _mapping(value: Any, what: str) -> dict[str, Any]:
+    """``value`` as a dict of parameters; ValueError naming ``what`` if it is not a mapping."""
+    if not isinstance(value, Mapping):
+        raise ValueError(f"{what} must be a dict of model parameters, got {value!r}")
+    return dict(value)
+
+
 def _case_layers(n_layers: int | Sequence[int], n_cases: int) -> list[int]:
     """One layer count per case (each a whole number >= 1)."""
     values = [n_layers] * n_cases if np.ndim(n_layers) == 0 else list(n_layers)
     if len(values) != n_cases:
         raise ValueError(f"n_layers has {len(values)} entries but there are {n_cases} cases")
     for v in values:
-        if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
-            raise ValueError(f"n_layers = {v!r} must be a whole number >= 1")
+        if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or not 1 <= v <= MAX_CELLS:
+            raise ValueError(f"n_layers = {_short(v)} must be a whole number in 1..{MAX_CELLS}")
     return [int(v) for v in values]
 
 
@@ -468,7 +475,11 @@ def sweep(
     """
     if base is not None and cases is not None:
         raise ValueError("give either base= (one experiment) or cases= (several), not both")
-    case_list = [dict(base or {})] if cases is None else [dict(c) for c in cases]
+    case_list = [_mapping(base or {}, "base")] if cases is None else None
+    if case_list is None:
+        if isinstance(cases, Mapping | str | bytes) or not isinstance(cases, Iterable):
+            raise ValueError(f"cases must be a list of parameter dicts (one per experiment), got {cases!r}")
+        case_list = [_mapping(c, f"cases[{i}]") for i, c in enumerate(cases)]
     if not case_list:
         raise ValueError("cases is empty: give at least one experiment")
     points = _grid_points(grid)

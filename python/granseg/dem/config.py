@@ -116,7 +116,13 @@ def _number(source: str, raw: Mapping[str, Any], key: str, positive: bool = True
         raise _fail(source, label, f"expected a number, got {value!r}")
     if positive and not value > 0:
         raise _fail(source, label, f"must be > 0, got {value!r}")
-    return float(value)
+    try:
+        number = float(value)
+    except OverflowError:  # an int beyond any float, e.g. 10**400 written in the JSON
+        raise _fail(source, label, f"{str(value)[:20]}... ({len(str(value))} digits) is beyond any float") from None
+    if number in (float("inf"), float("-inf")):
+        raise _fail(source, label, f"expected a finite number, got {value!r}")
+    return number
 
 
 def _parse(raw: dict[str, Any], source: str) -> DemConfig:
@@ -182,7 +188,10 @@ def _side_walls(source: str, value: Any, flow: str, up: str) -> tuple[str, tuple
     if (not isinstance(pos, (list, tuple)) or len(pos) != 2
             or not all(isinstance(p, (int, float)) and not isinstance(p, bool) for p in pos) or pos[1] <= pos[0]):
         raise _fail(source, "side_walls", f"expected [low, high] with low < high, got {pos!r}")
-    return third, (float(pos[0]), float(pos[1]))
+    try:
+        return third, (float(pos[0]), float(pos[1]))
+    except OverflowError:  # an int beyond any float
+        raise _fail(source, "side_walls", "a position is beyond any float") from None
 
 
 def _types(source: str, value: Any, density_unit: float) -> dict[int, Material]:

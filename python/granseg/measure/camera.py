@@ -153,7 +153,10 @@ def calibrate_camera(directory: str | os.PathLike, pattern: tuple[int, int] = (9
     grid[:, :2] = np.mgrid[0:cols, 0:rows].T.reshape(-1, 2) * square
     used, skipped, img, size, found = [], [], [], None, 0
     for f in files:
-        gray = cv2.imread(str(f), cv2.IMREAD_GRAYSCALE)
+        try:  # decoded from memory: cv2.imread crashes on a name that is not UTF-8
+            gray = cv2.imdecode(np.frombuffer(f.read_bytes(), np.uint8), cv2.IMREAD_GRAYSCALE)
+        except (OSError, cv2.error):
+            gray = None
         if gray is None:
             skipped.append(f"{f.name}: unreadable image")
             continue

@@ -286,7 +286,8 @@ class _FrameWorker:
         self.templates: Templates | None = None
         if not self.undistort.inside_image(exp.window):
             raise ValueError(f"{exp.path}: field 'window': {list(exp.window)} is outside the image "
-                             f"({image_size[0]} x {image_size[1]} px) once undistorted")
+                             f"({image_size[0]} x {image_size[1]} px) once undistorted with its "
+                             "'camera_matrix' and 'dist_coeffs'")
 
     def learn(self, image: np.ndarray) -> None:
         """Learn the spheres' appearances from one frame (kept None if it shows too few spheres)."""

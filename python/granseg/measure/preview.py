@@ -8,7 +8,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from granseg._io import atomic_path
+from granseg._io import atomic_path, cv2_path
 from granseg.measure.classify import AMBIGUOUS
 from granseg.measure.layers import N_LAYERS
 
@@ -32,6 +32,8 @@ def check_previews(directory: Path, frame_names: list[str], force: bool) -> None
     into ``directory`` (a folder, or one that can be made) without overwriting any unless ``force``."""
     from granseg._io import check_creatable, check_output_dir
 
+    for name in frame_names:
+        cv2_path(preview_path(directory, name))  # OpenCV cannot write a name that is not UTF-8
     if not directory.exists():
         check_creatable(directory)  # made later, with its parents
         return
@@ -48,8 +50,9 @@ def write_previews(directory: Path, result: Any, crops: dict[int, np.ndarray], f
             continue
         img = draw_preview(crops[i], result, i)
         path = preview_path(directory, result.frame_names[i])
+        cv2_path(path)  # a name OpenCV cannot take is named as the preview's, not its temporary file's
         with atomic_path(path, force=force) as tmp:
-            if not cv2.imwrite(str(tmp), img):
+            if not cv2.imwrite(cv2_path(tmp), img):
                 raise OSError(f"{path}: could not write preview image")
         written.append(path)
     return written

@@ -9,6 +9,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from granseg._io import cv2_path
 from granseg.errors import BadFrame
 
 __all__ = ["BadFrame", "FrameDirectory", "VideoFrames", "open_frames", "IMAGE_SUFFIXES"]
@@ -72,7 +73,7 @@ class VideoFrames:
     def __init__(self, path: Path):
         if not path.is_file():
             raise FileNotFoundError(f"{path}: video file not found")
-        cap = cv2.VideoCapture(str(path))
+        cap = cv2.VideoCapture(cv2_path(path))
         ok = cap.isOpened()
         self.expected = int(cap.get(cv2.CAP_PROP_FRAME_COUNT)) if ok else 0
         self.fps = float(cap.get(cv2.CAP_PROP_FPS)) if ok else None
@@ -88,7 +89,7 @@ class VideoFrames:
 
     def frames(self) -> Iterator[tuple[int, np.ndarray]]:
         """Decoded frames in order; stops at the end of the readable stream."""
-        cap = cv2.VideoCapture(str(self.path))
+        cap = cv2.VideoCapture(cv2_path(self.path))
         i = 0
         try:
             while True:

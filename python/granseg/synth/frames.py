@@ -33,7 +33,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from granseg._io import atomic_path, save_json
+from granseg._io import atomic_path, cv2_path, save_json
 
 __all__ = ["MATERIAL_LOOKS", "VIDEO_CODECS", "RenderedFrames", "default_camera", "render_frames",
            "render_checkerboard"]
@@ -971,7 +971,7 @@ def _write(result: RenderedFrames, out: Path, jpeg_quality: int | None, force: b
     for i, img in enumerate(result.images):
         p = out / f"frame_{i:04d}{ext}"
         with atomic_path(p, force=force) as tmp:
-            if not cv2.imwrite(str(tmp), img, params):
+            if not cv2.imwrite(cv2_path(tmp), img, params):
                 raise OSError(f"{p}: could not write image")
         paths.append(p)
     paths.append(save_json(out / "experiment.json", result.experiment, force=force))
@@ -999,7 +999,7 @@ def _video(result: RenderedFrames, app: dict[str, Any], out_dir, force: bool) ->
 def _encode(images: list[np.ndarray], path: Path, codec: str, bitrate: float | None) -> None:
     h, w = images[0].shape[:2]
     if codec == "mp4v" and bitrate is None:
-        writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), VIDEO_PLAYBACK_FPS, (w, h))
+        writer = cv2.VideoWriter(cv2_path(path), cv2.VideoWriter_fourcc(*"mp4v"), VIDEO_PLAYBACK_FPS, (w, h))
         if not writer.isOpened():
             raise OSError(f"{path}: OpenCV cannot write MPEG-4 (mp4v) video here")
         for img in images:
@@ -1031,7 +1031,7 @@ def _encode(images: list[np.ndarray], path: Path, codec: str, bitrate: float | N
 
 
 def _decode(path: Path, n: int) -> list[np.ndarray]:
-    cap = cv2.VideoCapture(str(path))
+    cap = cv2.VideoCapture(cv2_path(path))
     images = []
     try:
         while len(images) < n:

@@ -1,0 +1,131 @@
+"""Plain regression tests for what the fuzz suite (tests/test_fuzz.py) found (issue 14).
+
+Each failed on the code before its fix. Process crashes run in a subprocess, so that a
+regression fails one test instead of killing the run."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import textwrap
+
+import numpy as np
+import pytest
+
+import granseg
+from granseg.errors import MapFormatError
+from granseg.maps import Map, load_map
+from test_maps import fields
+
+
+def test_a_text_field_that_is_not_utf8_is_named(tmp_path):
+    """Was: "invalid map data (UnicodeDecodeError: ...)", naming no field."""
+    raw = {k: (np.str_(v) if isinstance(v, str) else v) for k, v in fields().items()}
+    raw["heavy"] = np.bytes_(b"gl\xffss")
+    with open(tmp_path / "a.npz", "wb") as fh:
+        np.savez(fh, **raw)
+    with pytest.raises(MapFormatError, match=r"a\.npz: field 'heavy': expected UTF-8 text") as info:
+        load_map(tmp_path / "a.npz")
+    assert str(tmp_path / "a.npz") in str(info.value)
+    with pytest.raises(MapFormatError, match="field 'name': expected UTF-8"):
+        Map.from_arrays({**fields(), "name": np.bytes_(b"\xfe")})
+
+
+@pytest.mark.parametrize("call, name", [
+    (lambda: granseg.steady_state(n_cells=30, delta_over_H=10**400), "delta_over_H"),
+    (lambda: granseg.simulate(t=[0.0, 60.0], n_cells=30, k=10**400), "k"),
+    (lambda: granseg.simulate(t=[0.0, 10**400], n_cells=30), "t"),
+    (lambda: granseg.simulate(t=[0.0, 60.0], n_cells=10**400), "n_cells"),
+    (lambda: granseg.simulate(t=[0.0, 60.0], n_cells=30, rtol=10**400), "rtol"),
+    (lambda: granseg.simulate(t=[0.0, 60.0], n_cells=30, atol="abc"), "atol"),
+    (lambda: granseg.sweep({"k": [10**400]}, t=[0.0, 60.0], n_cells=30), "k"),
+])
+def test_integers_beyond_float_are_refused_naming_the_parameter(call, name):
+    """Was: OverflowError ('int too large to convert to float'), or a ValueError naming nothing."""
+    with pytest.raises(ValueError, match=name):
+        call()
+
+
+@pytest.mark.parametrize("name", ["rpm", "D_out"])
+def test_a_zero_rotation_or_outer_diameter_is_named_as_itself(name):
+    """Was: 'parameter v1 = 0 is out of range: must be < v0', naming a parameter not given."""
+    with pytest.raises(ValueError, match=rf"parameter {name} = 0(\.0)? is out of range"):
+        granseg.simulate(t=[0.0, 60.0], n_cells=30, **{name: 0})
+
+
+@pytest.mark.parametrize("cases, words", [
+    ("2.5", "cases must be a list of parameter dicts"),
+    ({"k": 0.7}, "cases must be a list of parameter dicts"),
+    ([{"k": 0.7}, 3], r"cases\[1\] must be a dict"),
+])
+def test_sweep_names_cases_that_are_not_dicts(cases, words):
+    """Was: "dictionary update sequence element #0 has length 1; 2 is required"."""
+    with pytest.raises(ValueError, match=words):
+        granseg.sweep({"k": [0.7]}, cases=cases, t=[0.0, 60.0], n_cells=30)
+    with pytest.raises(ValueError, match="base must be a dict"):
+        granseg.sweep({"k": [0.7]}, base="2.5", t=[0.0, 60.0], n_cells=30)
+
+
+def _run(code: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-c", textwrap.dedent(code)], capture_output=True, text=True, errors="replace",
+                          timeout=120)
+
+
+@pytest.mark.skipif(sys.platform == "win32", reason="POSIX file names are bytes")
+def test_a_folder_name_that_is_not_utf8_does_not_crash_opencv(tmp_path):
+    """Was: a segmentation fault in cv2.imread / cv2.imwrite / cv2.VideoCapture (the process died)
+    for calibrate-camera on such a folder, analyze --preview into one, and a video under one."""
+    import cv2
+
+    d = os.fsencode(tmp_path) + b"/photos-\xff"
+    os.mkdir(d)
+    cv2.imwrite(str(tmp_path / "board.png"), np.zeros((40, 40, 3), np.uint8))
+    os.rename(tmp_path / "board.png", d + b"/board.png")
+    video = os.fsencode(tmp_path) + b"/clip-\xff.mp4"
+    with open(video, "wb") as fh:
+        fh.write(b"not really a video")
+    r = _run(f"""
+        import os
+        from granseg.measure import calibrate_camera
+        from granseg.measure.sources import VideoFrames
+        from granseg._io import cv2_path
+        from pathlib import Path
+        for call in (lambda: calibrate_camera(os.fsdecode({d!r})),
+                     lambda: VideoFrames(Path(os.fsdecode({video!r}))),
+                     lambda: cv2_path(Path(os.fsdecode({d!r})) / "preview.png")):
+            try:
+                call()
+            except ValueError as exc:
+                print("refused:", exc)
+        print("alive")
+    """)
+    assert r.returncode == 0, r.stderr[-2000:]
+    lines = r.stdout.splitlines()
+    assert lines[-1] == "alive"
+    assert "no 9x6 checkerboard" in r.stdout or "found the board in 0 of 1" in r.stdout, r.stdout
+    assert sum("not valid UTF-8" in x for x in lines) == 2, r.stdout
+
+
+def test_a_quality_record_whose_checks_are_not_objects_is_named(tmp_path):
+    """Was: AttributeError ("'int' object has no attribute 'items'") from Map.failed_checks."""
+    for checks in ("5", "[1, 2]", '{"a": 3}'):
+        with pytest.raises(MapFormatError, match=r"field 'quality': \"checks\" must be a JSON object"):
+            Map.from_arrays({**fields(), "quality": '{"ok": false, "checks": ' + checks + "}"})
+    m = Map.from_arrays({**fields(), "quality": '{"ok": false, "checks": {"a": {"passed": false}}}'})
+    assert m.failed_checks == ["a"]
+
+
+def test_a_zero_finite_difference_step_is_named():
+    """Was: numpy.linalg.LinAlgError 'SVD did not converge' from the fit (found by tests/test_fuzz.py)."""
+    for bad in (0.0, -1e-3, float("nan"), 2.0, True):
+        with pytest.raises(ValueError, match="fd_rel"):
+            granseg.calibrate([], fd_rel=bad, progress=False)
+    with pytest.raises(ValueError, match="max_nfev"):
+        granseg.calibrate([], max_nfev=0, progress=False)
+
+
+def test_a_layer_count_beyond_the_cores_integers_is_named():
+    """Was: OverflowError 'int too big to convert' from the core (found by tests/test_fuzz.py)."""
+    with pytest.raises(ValueError, match=r"n_layers = 1000.*must be a whole number in 1\.\.100000"):
+        granseg.sweep(t=[0.0, 60.0], n_layers=10**30, n_cells=30)
