@@ -94,7 +94,7 @@ def figure(data: dict[str, list[tuple[float, float, float]]], stem: Path) -> Non
             last = None  # label a point only when it is clear of the last labelled one
             for rt, x, y in zip([p[0] for p in pts], s, e, strict=True):
                 here = np.log10([x, y])
-                if last is None or np.abs(here - last).max() > 0.12:
+                if last is None or np.abs(here - last).max() > 0.3:
                     ax.annotate(f"{rt:g}", (x, y), textcoords="offset points", xytext=(4, 3), fontsize=7,
                                 color="0.35")
                     last = here

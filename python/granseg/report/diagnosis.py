@@ -27,7 +27,13 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from granseg._io import atomic_write_text, check_output_dir, check_writable, save_json, staged_output_dir
+from granseg._io import (
+    atomic_write_text,
+    check_output_dir,
+    check_writable,
+    save_json,
+    staged_output_dir,
+)
 from granseg.diagnosis.selection import GAIN_THRESHOLD
 from granseg.plot.diagnosis import FIGURES
 from granseg.report.html import (
