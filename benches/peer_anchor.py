@@ -51,22 +51,13 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests"))
 
+from compare_scipy import GPP, TARGET, T, best_time  # noqa: E402  (the case and the timer, one definition)
+
 import granseg  # noqa: E402
 from reference_mol import DP, I0, MU_2, MU_MIN, P_LOAD, PHI, G, H, Reference  # noqa: E402
 
-T = np.arange(0, 3601, 2.0)
-GPP = dict(rho_h=2450.0, rho_l=946.0, c0=0.5)
 N_CELLS = 180
-TARGET = 1e-3
 
-
-def best_time(fn, repeats: int) -> float:
-    best = np.inf
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        fn()
-        best = min(best, time.perf_counter() - t0)
-    return best
 
 
 # ---------------------------------------------------------------- the model, as reference_mol has it

@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import argparse
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -23,21 +22,13 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests"))
 
+from compare_scipy import GPP, T, best_time  # noqa: E402  (the case and the timer, one definition)
+
 import granseg  # noqa: E402
 from reference_mol import Reference  # noqa: E402
 
-T = np.arange(0, 3601, 2.0)
-GPP = dict(rho_h=2450.0, rho_l=946.0, c0=0.5)
 RTOLS = [1e-2, 3e-3, 1e-3, 3e-4, 1e-4, 3e-5, 1e-5, 3e-6, 1e-6]
 
-
-def best_time(fn, repeats: int) -> float:
-    best = np.inf
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        fn()
-        best = min(best, time.perf_counter() - t0)
-    return best
 
 
 def curves(repeats: int) -> dict[str, list[tuple[float, float, float]]]:
