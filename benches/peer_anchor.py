@@ -63,15 +63,8 @@ N_CELLS = 180
 # ---------------------------------------------------------------- the model, as reference_mol has it
 
 def segregation_velocity(mol: Reference, c: np.ndarray) -> np.ndarray:
-    """w (positive downward) at the n - 1 interior faces: the lines of ``Reference.rhs``."""
-    rho = mol.rho_h * c + mol.rho_l * (1 - c)
-    above = np.cumsum(rho[::-1])[::-1][1:]
-    p = P_LOAD + G * PHI * mol.dz * above
-    cf = 0.5 * (c[1:] + c[:-1])
-    rf = mol.rho_h * cf + mol.rho_l * (1 - cf)
-    inertial = mol.gdot * DP * np.sqrt(rf * PHI / p)
-    mu = MU_MIN + (MU_2 - MU_MIN) / (I0 / inertial + 1)
-    return DP**2 * G * (mol.rho_h - mol.rho_l) * (1 - cf) * mol.gdot / (18 * mol.k * mu * p)
+    """w (positive downward) at the n - 1 interior faces, as ``Reference.rhs`` has it."""
+    return mol.segregation_velocity(c)
 
 
 def make_numba_rhs(mol: Reference):

@@ -40,8 +40,8 @@ class Reference:
         u = (x + 1) / 2
         return 6 * u**5 - 15 * u**4 + 10 * u**3
 
-    def rhs(self, t, c):
-        self.n_rhs += 1
+    def segregation_velocity(self, c):
+        """w (positive downward) at the n - 1 interior faces."""
         rho = self.rho_h * c + self.rho_l * (1 - c)
         # pressure at face i+1/2: lid + weight of cells i+1 .. n-1
         above = np.cumsum(rho[::-1])[::-1][1:]
@@ -50,7 +50,12 @@ class Reference:
         rf = self.rho_h * cf + self.rho_l * (1 - cf)
         inertial = self.gdot * DP * np.sqrt(rf * PHI / p)
         mu = MU_MIN + (MU_2 - MU_MIN) / (I0 / inertial + 1)
-        w = DP**2 * G * (self.rho_h - self.rho_l) * (1 - cf) * self.gdot / (18 * self.k * mu * p)
+        return DP**2 * G * (self.rho_h - self.rho_l) * (1 - cf) * self.gdot / (18 * self.k * mu * p)
+
+    def rhs(self, t, c):
+        self.n_rhs += 1
+        w = self.segregation_velocity(c)
+        cf = 0.5 * (c[1:] + c[:-1])
         flux = -w * cf - self.diff * (c[1:] - c[:-1]) / self.dz
         flux = np.concatenate(([0.0], flux, [0.0]))
         return -(flux[1:] - flux[:-1]) / self.dz
