@@ -11,7 +11,7 @@
 //! take fewer steps at equal accuracy but more stages per step
 //! (`examples/work_precision.rs`, BENCHMARKS.md). At the 1e-3 the layer maps
 //! need, ESDIRK3 is the fastest on G-PP and ESDIRK4 on the hardest case
-//! (S-PP, c0 = 0.9); as a default, ESDIRK4 at rtol 1e-4 is 13 % faster but
+//! (S-PP, c0 = 0.9); as a default, ESDIRK4 at rtol 1e-4 is 12 % faster but
 //! misses 1e-3 on 2 of 24 cases drawn over the physical ranges
 //! (`examples/default_survey.rs`), so ESDIRK3 stays the default.
 //!
