@@ -65,6 +65,7 @@ from granseg.fitting import (
     intervals,
 )
 from granseg.fitting.solve import ERROR_METHODS, MIN_CLUSTERS
+from granseg.fitting.threads import one_blas_thread
 from granseg.fitting.uncertainty import Uncertainty
 from granseg.maps import Campaign, Map, check_accepted, load_campaign
 from granseg.model import defaults
@@ -279,6 +280,7 @@ def _free_params(grid: Mapping[str, list[float]], bounds: tuple[np.ndarray, np.n
 # --------------------------------------------------------------------------- public entry
 
 
+@one_blas_thread
 def calibrate(
     campaign: Campaign | Sequence[Map] | str | os.PathLike,
     *,

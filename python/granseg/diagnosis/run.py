@@ -28,6 +28,7 @@ from granseg.diagnosis.open_world import OpenWorld, explore
 from granseg.diagnosis.result import DiagnosisJSON, build_result
 from granseg.fitting import DEFAULT_N_CELLS, Data, Fit, fit, loo_predict
 from granseg.fitting import causes as catalogue
+from granseg.fitting.threads import one_blas_thread
 from granseg.maps import Map, check_accepted
 
 __all__ = ["Diagnosis", "diagnose"]
@@ -113,6 +114,7 @@ def _check_calibration(cal: Calibration, maps: list[Map]) -> None:
         raise ValueError("calibration: the diagnosis starts from a refined calibration of k and delta_over_H")
 
 
+@one_blas_thread
 def diagnose(
     campaign: Any,
     *,
