@@ -21,6 +21,7 @@ __all__ = [
     "QualityWarning",
     "StaleFileWarning",
     "CameraWarning",
+    "short_repr",
 ]
 
 
@@ -76,3 +77,10 @@ class StaleFileWarning(UserWarning):
 
 class CameraWarning(UserWarning):
     """A camera calibration was made but is poorly constrained (the warning gives the figures)."""
+
+
+def short_repr(value: object) -> str:
+    """``repr`` of a value for an error message, cut to a readable length: a 400-digit integer
+    from a JSON file stays one line."""
+    text = repr(value)
+    return text if len(text) <= 40 else f"{text[:20]}...({len(text)} characters)"

@@ -17,7 +17,7 @@ import numpy as np
 
 from granseg import _core
 from granseg.constants import N_LAYERS
-from granseg.errors import SolverError
+from granseg.errors import SolverError, short_repr
 
 __all__ = [
     "MATERIALS",
@@ -70,18 +70,13 @@ def _params(overrides: Mapping[str, Any], where: str = "") -> dict[str, float]:
         except (TypeError, ValueError):
             raise ValueError(f"{where}parameter {name} = {value!r} is not a number") from None
         except OverflowError:  # an int beyond any float, e.g. 10**400 from JSON
-            raise ValueError(f"{where}parameter {name} = {_short(value)} is too large for a number") from None
+            raise ValueError(f"{where}parameter {name} = {short_repr(value)} is too large for a number") from None
     try:
         _core.validate(out)
     except ValueError as exc:
         raise ValueError(f"{where}{exc}") from None
     return out
 
-
-def _short(value: Any) -> str:
-    """``repr`` of a value cut to a readable length (a 400-digit integer stays one line)."""
-    text = repr(value)
-    return text if len(text) <= 40 else f"{text[:20]}...({len(text)} characters)"
 
 
 def _times(t: Any, name: str = "t", n_cells: int | None = None) -> np.ndarray:
@@ -119,14 +114,14 @@ def _solver_options(n_cells: Any, rtol: float | None, atol: float | None) -> tup
         raise ValueError(f"n_cells = {n_cells!r} must be an integer >= 15")
     # the core checks the upper limit (naming the bytes asked for); a number beyond its integers stops here
     if not 15 <= n_cells < 2**63:
-        raise ValueError(f"n_cells = {_short(n_cells)} is out of range: must be in 15..{MAX_CELLS} "
+        raise ValueError(f"n_cells = {short_repr(n_cells)} is out of range: must be in 15..{MAX_CELLS} "
                          "(one cell per layer at least)")
     tols = {}
     for name, v in (("rtol", rtol), ("atol", atol)):
         try:
             tols[name] = v = (RTOL if name == "rtol" else ATOL) if v is None else float(v)
         except (TypeError, ValueError, OverflowError):
-            raise ValueError(f"{name} = {_short(v)} is not a number") from None
+            raise ValueError(f"{name} = {short_repr(v)} is not a number") from None
         if not (math.isfinite(v) and 0 < v < 1):
             raise ValueError(f"{name} = {v} is out of range: must be in (0, 1)")
     return int(n_cells), tols["rtol"], tols["atol"]
@@ -354,7 +349,7 @@ def _grid_points(grid: Mapping[str, Iterable[float]] | None) -> list[dict[str, f
             try:
                 fv = float(v)
             except (TypeError, ValueError, OverflowError):
-                raise ValueError(f"grid: {name} value {_short(v)} is not a finite number") from None
+                raise ValueError(f"grid: {name} value {short_repr(v)} is not a finite number") from None
             if not math.isfinite(fv):
                 raise ValueError(f"grid: {name} value {v!r} is not finite")
         keys.append(name)
@@ -428,7 +423,7 @@ def _case_layers(n_layers: int | Sequence[int], n_cases: int) -> list[int]:
         raise ValueError(f"n_layers has {len(values)} entries but there are {n_cases} cases")
     for v in values:
         if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or not 1 <= v <= MAX_CELLS:
-            raise ValueError(f"n_layers = {_short(v)} must be a whole number in 1..{MAX_CELLS}")
+            raise ValueError(f"n_layers = {short_repr(v)} must be a whole number in 1..{MAX_CELLS}")
     return [int(v) for v in values]
 
 

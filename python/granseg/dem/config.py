@@ -27,7 +27,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from granseg.errors import DemFormatError
+from granseg.errors import DemFormatError, short_repr
 
 __all__ = ["DemConfig", "Material", "load_config"]
 
@@ -119,7 +119,7 @@ def _number(source: str, raw: Mapping[str, Any], key: str, positive: bool = True
     try:
         number = float(value)
     except OverflowError:  # an int beyond any float, e.g. 10**400 written in the JSON
-        raise _fail(source, label, f"{str(value)[:20]}... ({len(str(value))} digits) is beyond any float") from None
+        raise _fail(source, label, f"{short_repr(value)} is beyond any float") from None
     if number in (float("inf"), float("-inf")):
         raise _fail(source, label, f"expected a finite number, got {value!r}")
     return number

@@ -11,6 +11,7 @@ from typing import Any
 import numpy as np
 
 from granseg._io import read_json
+from granseg.errors import short_repr
 from granseg.maps import Conditions
 
 __all__ = ["Experiment", "load_experiment"]
@@ -110,11 +111,6 @@ def _finite(value: int | float) -> bool:
         return False
 
 
-def _short(value: object) -> str:
-    """``repr`` cut to a readable length: a 400-digit number stays one line."""
-    text = repr(value)
-    return text if len(text) <= 40 else f"{text[:20]}...({len(text)} characters)"
-
 
 class _Fields:
     """Typed access to the JSON fields, with messages naming file and field."""
@@ -141,7 +137,7 @@ class _Fields:
         if value is None:
             return None
         if isinstance(value, bool) or not isinstance(value, int | float) or not _finite(value):
-            raise ValueError(f"{self.path}: field '{key}': expected a finite number, got {_short(value)}")
+            raise ValueError(f"{self.path}: field '{key}': expected a finite number, got {short_repr(value)}")
         if (lo is not None and value <= lo) or (hi is not None and value >= hi):
             raise ValueError(f"{self.path}: field '{key}': {value} outside ({lo}, {hi if hi is not None else 'inf'})")
         return float(value)
@@ -151,7 +147,7 @@ class _Fields:
         try:
             a = np.asarray(value, dtype=float)
         except (TypeError, ValueError, OverflowError):
-            raise ValueError(f"{self.path}: field '{key}': expected finite numbers, got {_short(value)}") from None
+            raise ValueError(f"{self.path}: field '{key}': expected finite numbers, got {short_repr(value)}") from None
         if (shape is not None and a.shape != shape) or (shape is None and a.ndim != 1):
             want = "a list of numbers" if shape is None else f"shape {shape}"
             raise ValueError(f"{self.path}: field '{key}': expected {want}, got shape {a.shape}")
