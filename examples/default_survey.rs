@@ -8,10 +8,9 @@
 use std::sync::Arc;
 use std::time::Instant;
 
-use _core::layers::LayerMap;
-use _core::stepper::{integrate_scheme, LayerOutput, Scheme, Tridiagonal};
+use _core::stepper::{layer_map_with_scheme, Scheme};
 use _core::sweep::{run_one, RunSpec};
-use _core::{limits, Params, Tolerances};
+use _core::{Params, Tolerances};
 
 /// A small deterministic generator (the cases are fixed by the seed, no crate needed).
 struct Lcg(u64);
@@ -27,23 +26,12 @@ impl Lcg {
 
 fn run(p: &Params, t: &[f64], scheme: Scheme, rtol: f64) -> (Vec<f64>, f64) {
     let start = Instant::now();
-    let mut out = LayerOutput::new(LayerMap::new(180, 15), 180, vec![0.0; t.len() * 15]).unwrap();
     let tol = Tolerances {
         rtol,
         atol: rtol / 10.0,
     };
-    integrate_scheme(
-        p,
-        180,
-        t,
-        tol,
-        scheme,
-        Tridiagonal::new(180),
-        &mut out,
-        limits::never(),
-    )
-    .unwrap();
-    (out.layers, start.elapsed().as_secs_f64())
+    let (map, _) = layer_map_with_scheme(p, 180, t, tol, scheme, 15).unwrap();
+    (map, start.elapsed().as_secs_f64())
 }
 
 fn main() {

@@ -11,9 +11,9 @@
 use std::sync::Arc;
 use std::time::Instant;
 
-use _core::stepper::{integrate_scheme, LayerOutput, Scheme, Tridiagonal};
+use _core::stepper::{layer_map_with_scheme, Scheme};
 use _core::sweep::{run_one, RunSpec};
-use _core::{layers::LayerMap, limits, Params, Tolerances};
+use _core::{Params, Tolerances};
 
 fn layers(
     p: &Params,
@@ -22,20 +22,8 @@ fn layers(
     tol: Tolerances,
     scheme: Scheme,
 ) -> (Vec<f64>, usize) {
-    let mut out =
-        LayerOutput::new(LayerMap::new(n_cells, 15), n_cells, vec![0.0; t.len() * 15]).unwrap();
-    let stats = integrate_scheme(
-        p,
-        n_cells,
-        t,
-        tol,
-        scheme,
-        Tridiagonal::new(n_cells),
-        &mut out,
-        limits::never(),
-    )
-    .unwrap();
-    (out.layers, stats.steps)
+    let (map, stats) = layer_map_with_scheme(p, n_cells, t, tol, scheme, 15).unwrap();
+    (map, stats.steps)
 }
 
 fn main() {

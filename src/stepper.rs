@@ -851,6 +851,38 @@ pub fn integrate_with_stop<M: NewtonMatrix>(
     integrate_scheme(p, n_cells, t_out, tol, Scheme::default(), matrix, out, stop)
 }
 
+/// The layer map (n_t x n_layers, row-major) of one run with a chosen scheme,
+/// without the field: what the scheme comparisons (`examples/`) time.
+pub fn layer_map_with_scheme(
+    p: &Params,
+    n_cells: usize,
+    t_out: &[f64],
+    tol: Tolerances,
+    scheme: Scheme,
+    n_layers: usize,
+) -> Result<(Vec<f64>, Stats), SolveError> {
+    let len = limits::check_buffer(
+        "the layer map",
+        &[("len(t)", t_out.len()), ("n_layers", n_layers)],
+    )?;
+    let mut out = LayerOutput::new(
+        LayerMap::new(n_cells, n_layers),
+        n_cells,
+        limits::zeroed(len, "the layer map")?,
+    )?;
+    let stats = integrate_scheme(
+        p,
+        n_cells,
+        t_out,
+        tol,
+        scheme,
+        Tridiagonal::new(n_cells),
+        &mut out,
+        limits::never(),
+    )?;
+    Ok((out.layers, stats))
+}
+
 /// `integrate_with_stop` with a chosen time-stepping scheme.
 #[allow(clippy::too_many_arguments)]
 pub fn integrate_scheme<M: NewtonMatrix>(
