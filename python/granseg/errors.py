@@ -21,7 +21,6 @@ __all__ = [
     "QualityWarning",
     "StaleFileWarning",
     "CameraWarning",
-    "short_repr",
 ]
 
 
@@ -80,7 +79,8 @@ class CameraWarning(UserWarning):
 
 
 def short_repr(value: object) -> str:
-    """``repr`` of a value for an error message, cut to a readable length: a 400-digit integer
+    """(A helper for the messages, not an error class, so not in ``__all__``.)
+    ``repr`` of a value for an error message, cut to a readable length: a 400-digit integer
     from a JSON file stays one line."""
     text = repr(value)
     return text if len(text) <= 40 else f"{text[:20]}...({len(text)} characters)"
