@@ -50,6 +50,7 @@ fn paper_sweep() -> Vec<RunSpec> {
                     t_out: t.clone(),
                     measured: None,
                     n_layers: _core::sweep::N_LAYERS,
+                    tangents: Default::default(),
                 });
             }
         }

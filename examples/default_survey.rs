@@ -69,6 +69,7 @@ fn main() {
             t_out: Arc::new(t.clone()),
             measured: None,
             n_layers: 15,
+            tangents: Default::default(),
         };
         let reference = run_one(
             &spec,

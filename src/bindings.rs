@@ -23,9 +23,10 @@ use std::sync::mpsc;
 use std::sync::Arc;
 use std::time::Duration;
 
-use numpy::ndarray::Array2;
+use numpy::ndarray::{Array2, Array3};
 use numpy::{
-    IntoPyArray, PyArray1, PyArray2, PyReadonlyArray1, PyReadonlyArray2, PyUntypedArrayMethods,
+    IntoPyArray, PyArray1, PyArray2, PyArray3, PyReadonlyArray1, PyReadonlyArray2,
+    PyUntypedArrayMethods,
 };
 use pyo3::exceptions::{PyKeyboardInterrupt, PyMemoryError, PyRuntimeError, PyValueError};
 use pyo3::prelude::*;
@@ -33,6 +34,7 @@ use pyo3::types::PyDict;
 
 use crate::error::SolveError;
 use crate::params::{Params, FIELDS, MATERIALS};
+use crate::sensitivity::Tangent;
 use crate::stepper::{Stats, Tolerances};
 use crate::sweep::{Measured, RunSpec};
 use crate::{layers, limits, model, steady, stepper};
@@ -261,6 +263,7 @@ fn simulate_layers<'py>(
         t_out: Arc::new(t.as_array().to_vec()),
         measured: None,
         n_layers,
+        tangents: Default::default(),
     };
     let tol = tolerances(rtol, atol);
     let r = detached(py, move |stop| {
@@ -347,10 +350,39 @@ fn moving_average<'py>(
     Ok(out.into_pyarray(py))
 }
 
+/// A view's dwell: per column y[0] = x[0], y[t] = (1 - s) x[t] + s y[t-1] (layers.rs).
+#[pyfunction]
+fn lagged<'py>(
+    py: Python<'py>,
+    x: PyReadonlyArray2<'py, f64>,
+    survival: PyReadonlyArray1<'py, f64>,
+) -> PyResult<Bound<'py, PyArray2<f64>>> {
+    let shape = x.shape();
+    let s: Vec<f64> = survival.as_array().to_vec();
+    if s.len() != shape[1] {
+        return Err(PyValueError::new_err(format!(
+            "survival has {} entries for {} columns",
+            s.len(),
+            shape[1]
+        )));
+    }
+    if let Some(v) = s.iter().find(|v| !(0.0..=1.0).contains(*v)) {
+        return Err(PyValueError::new_err(format!(
+            "survival = {v} is not a share of a frame in [0, 1]"
+        )));
+    }
+    let data: Vec<f64> = x.as_array().iter().copied().collect();
+    let out = layers::lagged(&data, shape[0], shape[1], &s);
+    let out = Array2::from_shape_vec((shape[0], shape[1]), out)
+        .map_err(|e| PyRuntimeError::new_err(e.to_string()))?;
+    Ok(out.into_pyarray(py))
+}
+
 type SweepOut<'py> = (
     Vec<Bound<'py, PyArray2<f64>>>,
     Bound<'py, PyArray1<f64>>,
     Vec<Bound<'py, PyDict>>,
+    Vec<Bound<'py, PyArray3<f64>>>,
 );
 
 /// Many runs in parallel (rayon, GIL released).
@@ -358,10 +390,13 @@ type SweepOut<'py> = (
 /// params: one dict per run; t: one array per run; measured: per run None or
 /// an (n_t, n_layers) map at that run's times; smoothing: per run window;
 /// n_layers: per run, the layers of the output without a map (a map sets its own).
-/// Returns (layers per run, rmsd per run (NaN without a map), stats per run).
+/// tangents: per run None or a list of {parameter: change} directions to
+/// differentiate the layer map along (`sensitivity.rs`).
+/// Returns (layers per run, rmsd per run (NaN without a map), stats per run,
+/// sensitivities per run (n_tangents, n_t, n_layers)).
 /// A failed run raises, naming the run index.
 #[pyfunction]
-#[pyo3(signature = (params, t, measured, smoothing, n_layers, n_cells, rtol, atol, threads=None))]
+#[pyo3(signature = (params, t, measured, smoothing, n_layers, n_cells, rtol, atol, threads=None, tangents=None))]
 #[allow(clippy::too_many_arguments)]
 fn sweep<'py>(
     py: Python<'py>,
@@ -374,11 +409,18 @@ fn sweep<'py>(
     rtol: f64,
     atol: f64,
     threads: Option<usize>,
+    tangents: Option<Vec<Option<Vec<HashMap<String, f64>>>>>,
 ) -> PyResult<SweepOut<'py>> {
     let n = params.len();
-    if t.len() != n || measured.len() != n || smoothing.len() != n || n_layers.len() != n {
+    let tangents = tangents.unwrap_or_else(|| vec![None; n]);
+    if t.len() != n
+        || measured.len() != n
+        || smoothing.len() != n
+        || n_layers.len() != n
+        || tangents.len() != n
+    {
         return Err(PyValueError::new_err(
-            "params, t, measured, smoothing and n_layers must have one entry per run",
+            "params, t, measured, smoothing, n_layers and tangents must have one entry per run",
         ));
     }
     let mut specs = Vec::with_capacity(n);
@@ -391,11 +433,18 @@ fn sweep<'py>(
                 smoothing_frames: smoothing[i],
             })
         });
+        let dirs = tangents[i]
+            .iter()
+            .flatten()
+            .map(|d| Tangent::from_pairs(d.iter().map(|(k, v)| (k.as_str(), *v))))
+            .collect::<Result<Vec<_>, _>>()
+            .map_err(|e| to_py_err(prefix(i, e)))?;
         specs.push(RunSpec {
             params: p,
             t_out: Arc::new(t[i].as_array().to_vec()),
             measured: m,
             n_layers: n_layers[i],
+            tangents: Arc::new(dirs),
         });
     }
     let results = detached(py, move |stop| {
@@ -404,16 +453,21 @@ fn sweep<'py>(
     let mut layers_out = Vec::with_capacity(n);
     let mut rmsd = Vec::with_capacity(n);
     let mut stats = Vec::with_capacity(n);
+    let mut sens = Vec::with_capacity(n);
     for (i, r) in results.into_iter().enumerate() {
         let r = r.map_err(|e| to_py_err(prefix(i, e)))?;
         let n_t = r.layers.len() / r.n_layers;
+        let n_dir = r.sensitivities.len() / (n_t * r.n_layers).max(1);
+        let s = Array3::from_shape_vec((n_dir, n_t, r.n_layers), r.sensitivities)
+            .map_err(|e| PyRuntimeError::new_err(e.to_string()))?;
+        sens.push(s.into_pyarray(py));
         let arr = Array2::from_shape_vec((n_t, r.n_layers), r.layers)
             .map_err(|e| PyRuntimeError::new_err(e.to_string()))?;
         layers_out.push(arr.into_pyarray(py));
         rmsd.push(r.rmsd.unwrap_or(f64::NAN));
         stats.push(stats_dict(py, &r.stats)?);
     }
-    Ok((layers_out, rmsd.into_pyarray(py), stats))
+    Ok((layers_out, rmsd.into_pyarray(py), stats, sens))
 }
 
 fn prefix(i: usize, e: SolveError) -> SolveError {
@@ -451,13 +505,19 @@ fn call_limits() -> HashMap<String, usize> {
     ])
 }
 
+/// The scalar parameters a sweep's tangents may move (besides the law knots).
+#[pyfunction]
+fn differentiable() -> Vec<&'static str> {
+    crate::sensitivity::SCALARS.to_vec()
+}
+
 /// granseg's compiled core.
 #[pymodule]
 mod _core {
     #[pymodule_export]
     use super::{
-        _panic_for_testing, call_limits, default_tolerances, defaults, derived, law_keys,
-        layer_means, materials, moving_average, simulate, simulate_layers, steady_state, sweep,
-        validate, velocity_profile, SolverError,
+        _panic_for_testing, call_limits, default_tolerances, defaults, derived, differentiable,
+        lagged, law_keys, layer_means, materials, moving_average, simulate, simulate_layers,
+        steady_state, sweep, validate, velocity_profile, SolverError,
     };
 }

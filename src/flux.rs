@@ -21,13 +21,13 @@ pub struct Operator {
     pub grid: Grid,
     stokes: f64,
     /// Shear rate at the interior faces, 1/s.
-    gdot: Vec<f64>,
+    pub(crate) gdot: Vec<f64>,
     /// D / dz at the interior faces, m/s.
-    diff: Vec<f64>,
+    pub(crate) diff: Vec<f64>,
     /// stokes gdot / k at the faces: a = seg_num / (mu P).
-    seg_num: Vec<f64>,
+    pub(crate) seg_num: Vec<f64>,
     /// gdot D_p sqrt(phi_s) at the faces: I = inertia * sqrt(rho_m / P).
-    inertia: Vec<f64>,
+    pub(crate) inertia: Vec<f64>,
     /// Time at which gdot/diff were last evaluated (drifting delta only).
     t_faces: f64,
     /// Any law correction non-zero (`laws.rs`), fixed for the run.

@@ -52,6 +52,17 @@ impl Table {
         self.0[i] * (1.0 - w) + self.0[i + 1] * w
     }
 
+    /// d log_factor / dx (0 where x is clamped; the right-hand slope at a knot).
+    #[inline]
+    pub fn log_factor_slope(&self, x: f64) -> f64 {
+        if !(0.0..=1.0).contains(&x) {
+            return 0.0;
+        }
+        let s = x * (N_KNOTS - 1) as f64;
+        let i = (s.floor() as usize).min(N_KNOTS - 2);
+        (self.0[i + 1] - self.0[i]) * (N_KNOTS - 1) as f64
+    }
+
     /// The factor exp(log_factor(x)).
     #[inline]
     pub fn factor(&self, x: f64) -> f64 {

@@ -5,7 +5,9 @@
 //! The pressure-coupled Newton matrix (`pressure_coupled`, faer's sparse LU)
 //! is behind the `pressure-coupled` feature: the bindings do not use it.
 
+pub mod banded;
 pub mod error;
+pub mod exact_jacobian;
 pub mod flux;
 pub mod laws;
 pub mod layers;
@@ -14,6 +16,8 @@ pub mod model;
 pub mod params;
 #[cfg(feature = "pressure-coupled")]
 pub mod pressure_coupled;
+pub mod rosenbrock;
+pub mod sensitivity;
 pub mod steady;
 pub mod stepper;
 pub mod sweep;

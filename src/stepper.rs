@@ -29,6 +29,9 @@
 //! every Newton update, stage and step keeps the depth integral of c to
 //! round-off. Outputs come from cubic Hermite interpolation between steps
 //! (which also conserves mass, since the derivatives sum to zero).
+//!
+//! Given tangents (`integrate_core` with a `Sensitivities`), each accepted step
+//! is then differentiated along them with the exact Jacobian (`sensitivity.rs`).
 
 use std::sync::atomic::AtomicBool;
 
@@ -38,6 +41,7 @@ use crate::layers::LayerMap;
 use crate::limits;
 use crate::model::initial_condition;
 use crate::params::Params;
+use crate::sensitivity::Sensitivities;
 use crate::tridiag::TridiagLu;
 
 /// Error tolerances of the step-size control (weighted RMS norm).
@@ -895,6 +899,23 @@ pub fn integrate_scheme<M: NewtonMatrix>(
     out: &mut impl Output,
     stop: &AtomicBool,
 ) -> Result<Stats, SolveError> {
+    integrate_core(p, n_cells, t_out, tol, scheme, matrix, out, None, stop)
+}
+
+/// The one time loop: `integrate_scheme`, differentiating every accepted step
+/// along the tangents of `sens` when it is given (`sensitivity.rs`).
+#[allow(clippy::too_many_arguments)]
+pub fn integrate_core<M: NewtonMatrix>(
+    p: &Params,
+    n_cells: usize,
+    t_out: &[f64],
+    tol: Tolerances,
+    scheme: Scheme,
+    matrix: M,
+    out: &mut impl Output,
+    mut sens: Option<&mut Sensitivities>,
+    stop: &AtomicBool,
+) -> Result<Stats, SolveError> {
     p.validate()?;
     validate_run(n_cells, t_out, &tol)?;
     let tab = scheme.tableau();
@@ -914,6 +935,9 @@ pub fn integrate_scheme<M: NewtonMatrix>(
     let t_end = *t_out.last().unwrap();
     let mut t = 0.0;
     op.rhs(t, &w.y, &mut w.k[0]);
+    if let Some(sens) = sens.as_deref_mut() {
+        sens.start(&op, &w.y);
+    }
     let mut h = initial_step(&w, &tol, t_end);
     let mut fresh_jac = true;
     while next < t_out.len() {
@@ -955,6 +979,9 @@ pub fn integrate_scheme<M: NewtonMatrix>(
             }
             Attempt::Accepted(e) => {
                 let t_new = if last { t_end } else { t + h };
+                if let Some(sens) = sens.as_deref_mut() {
+                    sens.step(&mut op, tab, t, h, t_new, &w.y, &w.k, t_out, next)?;
+                }
                 let clip = enforce_bounds(&mut w.y_new);
                 if clip > 0.0 {
                     stats.clipped += 1;

@@ -12,6 +12,7 @@ use crate::error::SolveError;
 use crate::layers::{self, LayerMap};
 use crate::limits;
 use crate::params::Params;
+use crate::sensitivity::{self, Tangent};
 use crate::stepper::{self, Stats, Tolerances, Tridiagonal};
 
 /// A measured map to compare a run with: (n_t, n_layers) row-major, NaN =
@@ -34,6 +35,8 @@ pub struct RunSpec {
     pub measured: Option<Arc<Measured>>,
     /// Layers of the output map without a measured map (a map sets its own).
     pub n_layers: usize,
+    /// Directions to differentiate the layer map along (`sensitivity.rs`); none: no sensitivities.
+    pub tangents: Arc<Vec<Tangent>>,
 }
 
 /// What a run gives back.
@@ -45,6 +48,8 @@ pub struct RunResult {
     pub n_layers: usize,
     pub rmsd: Option<f64>,
     pub stats: Stats,
+    /// Layer maps of the sensitivities (n_tangents, n_t, n_layers), smoothed like `layers`.
+    pub sensitivities: Vec<f64>,
 }
 
 /// Solve one run and reduce it to layers (and RMSD).
@@ -97,34 +102,52 @@ pub fn run_one_stoppable(
     }
     spec.params.validate()?;
     stepper::validate_run(n_cells, &spec.t_out, &tol)?;
-    let mut output = stepper::LayerOutput::new(
-        LayerMap::new(n_cells, n_layers),
-        n_cells,
-        limits::zeroed(len, "the layer map")?,
-    )?;
-    let stats = stepper::integrate_with_stop(
-        &spec.params,
-        n_cells,
-        &spec.t_out,
-        tol,
-        Tridiagonal::new(n_cells),
-        &mut output,
-        stop,
-    )?;
-    let out = output.layers;
-    let (layers, rmsd) = match &spec.measured {
+    let (out, sens, stats) = if spec.tangents.is_empty() {
+        let mut output = stepper::LayerOutput::new(
+            LayerMap::new(n_cells, n_layers),
+            n_cells,
+            limits::zeroed(len, "the layer map")?,
+        )?;
+        let stats = stepper::integrate_with_stop(
+            &spec.params,
+            n_cells,
+            &spec.t_out,
+            tol,
+            Tridiagonal::new(n_cells),
+            &mut output,
+            stop,
+        )?;
+        (output.layers, Vec::new(), stats)
+    } else {
+        sensitivity::layer_map_with_sensitivities(
+            &spec.params,
+            n_cells,
+            &spec.t_out,
+            tol,
+            n_layers,
+            spec.tangents.to_vec(),
+            stop,
+        )?
+    };
+    let (layers, rmsd, sensitivities) = match &spec.measured {
         Some(m) => {
             let smooth = layers::moving_average(&out, n_t, n_layers, m.smoothing_frames);
             let r = layers::rmsd(&m.c, &smooth)?;
-            (smooth, Some(r))
+            let block = n_t * n_layers;
+            let sens = sens
+                .chunks(block.max(1))
+                .flat_map(|s| layers::moving_average(s, n_t, n_layers, m.smoothing_frames))
+                .collect();
+            (smooth, Some(r), sens)
         }
-        None => (out, None),
+        None => (out, None, sens),
     };
     Ok(RunResult {
         layers,
         n_layers,
         rmsd,
         stats,
+        sensitivities,
     })
 }
 
@@ -192,7 +215,12 @@ pub fn check_sweep(
     }
     limits::check_cells(n_cells)?;
     let total = specs.iter().try_fold(0usize, |acc, s| {
-        let len = output_len(s)?;
+        // the maps of the run and of its sensitivities, and the sensitivities' running
+        // state (S and 4 stages' K per direction and cell: `sensitivity.rs`)
+        let work = s.tangents.len().checked_mul(5)?.checked_mul(n_cells)?;
+        let len = output_len(s)?
+            .checked_mul(1 + s.tangents.len())?
+            .checked_add(work)?;
         let len = if s.measured.is_some() {
             len.checked_mul(2)?
         } else {
@@ -270,6 +298,7 @@ mod tests {
                 t_out: Arc::new(t.clone()),
                 measured: None,
                 n_layers: N_LAYERS,
+                tangents: Default::default(),
             };
             let lean = run_one(&spec, n_cells, tol).unwrap();
             let (field, stats) = stepper::simulate(&params, n_cells, &t, tol).unwrap();
@@ -300,6 +329,7 @@ mod tests {
                 t_out: t.clone(),
                 measured: None,
                 n_layers: N_LAYERS,
+                tangents: Default::default(),
             })
             .collect();
         let res = sweep(&specs, 60, Tolerances::default(), Some(2));
@@ -327,6 +357,7 @@ mod tests {
             t_out: t.clone(),
             measured: None,
             n_layers,
+            tangents: Default::default(),
         };
         let (a, b) = (
             run_one(&spec(11), 66, Tolerances::default()).unwrap(),
@@ -347,6 +378,7 @@ mod tests {
             t_out: Arc::new(t),
             measured: None,
             n_layers,
+            tangents: Default::default(),
         }
     }
 
@@ -390,6 +422,7 @@ mod tests {
             t_out: t.clone(),
             measured: None,
             n_layers: N_LAYERS,
+            tangents: Default::default(),
         };
         let bad = RunSpec {
             params: Params {
@@ -399,6 +432,7 @@ mod tests {
             t_out: t,
             measured: None,
             n_layers: N_LAYERS,
+            tangents: Default::default(),
         };
         let res = sweep(&[good, bad], 30, Tolerances::default(), None);
         assert!(res[0].is_ok());

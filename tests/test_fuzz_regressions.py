@@ -129,3 +129,13 @@ def test_a_layer_count_beyond_the_cores_integers_is_named():
     """Was: OverflowError 'int too big to convert' from the core (found by tests/test_fuzz.py)."""
     with pytest.raises(ValueError, match=r"n_layers = 1000.*must be a whole number in 1\.\.100000"):
         granseg.sweep(t=[0.0, 60.0], n_layers=10**30, n_cells=30)
+
+
+@pytest.mark.parametrize("name, bad", [("excess_threshold", 10**400), ("gain_threshold", float("nan")),
+                                       ("coherence_share", 1.5), ("coherence_alpha", "x"),
+                                       ("excess_threshold", True)])
+def test_a_decision_threshold_out_of_range_is_named_before_any_work(name, bad):
+    """Was: OverflowError 'int too large to convert to float' at the end of a whole diagnosis
+    (found by tests/test_fuzz.py)."""
+    with pytest.raises(ValueError, match=name):
+        granseg.diagnose([], progress=False, **{name: bad})

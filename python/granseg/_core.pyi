@@ -41,6 +41,12 @@ class SolverStats(TypedDict):
 def defaults() -> dict[str, float]:
     """Default value of every model parameter (MODEL.md), SI units."""
 
+def differentiable() -> list[str]:
+    """The scalar parameters a sweep's tangents may move (besides the law knots)."""
+
+def lagged(x: npt.NDArray[np.float64], survival: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+    """A view's dwell on an (n_t, n_cols) map: y[0] = x[0], y[t] = (1 - s) x[t] + s y[t-1] per column."""
+
 def law_keys() -> list[str]:
     """Parameter names of every knot of the open-world law corrections (default 0)."""
 
@@ -124,8 +130,11 @@ def sweep(
     rtol: float,
     atol: float,
     threads: int | None = None,
-) -> tuple[list[npt.NDArray[np.float64]], npt.NDArray[np.float64], list[SolverStats]]:
-    """Runs in parallel (rayon, GIL released): (layers per run, RMSD per run, stats).
+    tangents: list[list[dict[str, float]] | None] | None = None,
+) -> tuple[list[npt.NDArray[np.float64]], npt.NDArray[np.float64], list[SolverStats],
+           list[npt.NDArray[np.float64]]]:
+    """Runs in parallel (rayon, GIL released): (layers per run, RMSD per run, stats,
+    sensitivities per run (n_tangents, n_t, n_layers) along that run's ``tangents``).
 
     ValueError before any thread starts for threads outside 1..``max_threads``, n_cells >
     ``max_cells`` or layer maps above ``max_bytes`` in all; KeyboardInterrupt on Ctrl-C."""

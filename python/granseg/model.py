@@ -20,6 +20,7 @@ from granseg.constants import N_LAYERS
 from granseg.errors import SolverError, short_repr
 
 __all__ = [
+    "DIFFERENTIABLE",
     "MATERIALS",
     "LAW_KEYS",
     "PARAMETERS",
@@ -43,6 +44,8 @@ PARAMETERS: tuple[str, ...] = tuple(sorted(_DEFAULTS))
 #: shear rate by z/H and both rates by t/law_time, 17 knots each (see the core's laws.rs).
 LAW_KEYS: tuple[str, ...] = tuple(_core.law_keys())
 _LAW_KEY_SET = frozenset(LAW_KEYS)
+#: The scalar parameters :func:`sweep` can differentiate by (``tangents``), besides every law knot.
+DIFFERENTIABLE: tuple[str, ...] = tuple(_core.differentiable())
 RTOL, ATOL = _core.default_tolerances()
 N_CELLS = 180
 #: Ceilings of one call, from the core (src/limits.rs): the bytes its outputs may take (4 GiB),
@@ -282,12 +285,22 @@ def velocity_profile(z: Any, t: float = 0.0, **params: float) -> tuple[np.ndarra
 
 
 def _integrated_velocity(full: dict[str, float], z: np.ndarray, t: float) -> np.ndarray:
-    """v(z) = v(0) - integral_0^z of the model's shear rate, on a fine grid (trapezoids)."""
+    """v(z) = v(0) - integral_0^z of the model's shear rate.
+
+    Written as the exponential band's exact profile minus the integral of what the law
+    adds to its shear rate (trapezoids on a fine grid), so that the quadrature error
+    scales with the law's departure and vanishes with it: integrating the whole shear
+    rate numerically put a step of ~1e-7 m/s between a law of zero and none, which the
+    fits' derivatives through the view's dwell (steps of ~1e-6) read as a slope of 0.1.
+    """
+    plain = {k: v for k, v in full.items() if not k.startswith("law_shear_z_")}
     top = max(float(np.max(z, initial=0.0)), 0.0)
     fine = np.linspace(0.0, top, 4001) if top > 0 else np.zeros(1)
-    v_fine, g_fine = (np.asarray(a) for a in _core.velocity_profile(full, fine, t))
-    drop = np.concatenate([[0.0], np.cumsum(0.5 * (g_fine[1:] + g_fine[:-1]) * np.diff(fine))])
-    return v_fine[0] - np.interp(z, fine, drop)
+    g_law = np.asarray(_core.velocity_profile(full, fine, t)[1])
+    g_band = np.asarray(_core.velocity_profile(plain, fine, t)[1])
+    extra = g_law - g_band
+    drop = np.concatenate([[0.0], np.cumsum(0.5 * (extra[1:] + extra[:-1]) * np.diff(fine))])
+    return np.asarray(_core.velocity_profile(plain, z, t)[0]) - np.interp(z, fine, drop)
 
 
 # --------------------------------------------------------------------- sweep
@@ -308,6 +321,9 @@ class SweepResult:
         smoothed like the map, i.e. exactly what the RMSD compares.
     rmsd : (n_runs,) RMSD against each run's measured map, or None
     stats : solver counters per run
+    sensitivities : with ``tangents``, per run the (n_tangents, n_t, n_layers)
+        derivatives of its layer map along its case's tangents (smoothed like
+        ``layers``), else None
     """
 
     params: list[dict[str, float]]
@@ -317,6 +333,7 @@ class SweepResult:
     layers: Any
     rmsd: np.ndarray | None
     stats: list[dict[str, float]]
+    sensitivities: list[np.ndarray] | None = None
 
     @property
     def n_runs(self) -> int:
@@ -392,9 +409,10 @@ def _odd_window(s: Any, where: str) -> int:
     return s
 
 
-def _run_chunk(payload: dict[str, Any]) -> tuple[list[np.ndarray], np.ndarray, list[dict[str, float]]]:
+def _run_chunk(payload: dict[str, Any]
+               ) -> tuple[list[np.ndarray], np.ndarray, list[dict[str, float]], list[np.ndarray]]:
     """Solve a list of runs with the Rust sweep (also what Dask workers run)."""
-    layers, rmsd, stats = _call(
+    layers, rmsd, stats, sens = _call(
         _core.sweep,
         payload["params"],
         payload["t"],
@@ -405,8 +423,10 @@ def _run_chunk(payload: dict[str, Any]) -> tuple[list[np.ndarray], np.ndarray, l
         payload["rtol"],
         payload["atol"],
         payload.get("threads"),
+        payload.get("tangents"),
     )
-    return [np.asarray(x) for x in layers], np.asarray(rmsd), [dict(s) for s in stats]
+    return ([np.asarray(x) for x in layers], np.asarray(rmsd), [dict(s) for s in stats],
+            [np.asarray(x) for x in sens])
 
 
 def _mapping(value: Any, what: str) -> dict[str, Any]:
@@ -427,6 +447,37 @@ def _case_layers(n_layers: int | Sequence[int], n_cases: int) -> list[int]:
     return [int(v) for v in values]
 
 
+def _case_tangents(tangents: Any, n_cases: int) -> list[list[dict[str, float]] | None]:
+    """One list of tangent dicts per case (None: no sensitivities), names and values checked."""
+    if tangents is None:
+        return [None] * n_cases
+    if isinstance(tangents, Mapping | str | bytes) or not isinstance(tangents, Sequence):
+        raise ValueError("tangents must be a list (one per case) of lists of {parameter: change} dicts")
+    if len(tangents) != n_cases:
+        raise ValueError(f"tangents has {len(tangents)} entries but there are {n_cases} cases")
+    out: list[list[dict[str, float]] | None] = []
+    for ci, dirs in enumerate(tangents):
+        if isinstance(dirs, Mapping) or not isinstance(dirs, Sequence):
+            raise ValueError(f"tangents[{ci}] must be a list of {{parameter: change}} dicts")
+        case = []
+        for j, d in enumerate(dirs):
+            d = _mapping(d, f"tangents[{ci}][{j}]")
+            for k, v in d.items():
+                if k not in DIFFERENTIABLE and k not in _LAW_KEY_SET:
+                    raise ValueError(f"tangents[{ci}][{j}]: no sensitivity to {k!r}; the core differentiates "
+                                     f"by {', '.join(DIFFERENTIABLE)} and the law knots")
+                try:
+                    fv = float(v)
+                except (TypeError, ValueError, OverflowError):
+                    raise ValueError(f"tangents[{ci}][{j}][{k!r}] = {short_repr(v)} is not a number") from None
+                if not math.isfinite(fv):
+                    raise ValueError(f"tangents[{ci}][{j}][{k!r}] = {v!r} is not finite")
+                d[k] = fv
+            case.append(d)
+        out.append(case)
+    return out
+
+
 def _chunks(n: int, size: int) -> list[slice]:
     return [slice(i, min(i + size, n)) for i in range(0, n, size)]
 
@@ -445,6 +496,7 @@ def sweep(
     threads: int | None = None,
     client: Any = None,
     progress: bool | None = None,
+    tangents: Sequence[Sequence[Mapping[str, float]]] | None = None,
 ) -> SweepResult:
     """Run the full factorial of ``grid`` for one or several experiments, in parallel.
 
@@ -467,6 +519,10 @@ def sweep(
     client : a ``dask.distributed.Client``; the runs are split into chunks,
         each solved by the Rust sweep on a worker.
     progress : show a progress bar (default: for large sweeps on a terminal).
+    tangents : per case, a list of directions ``{parameter: change}`` to
+        differentiate its runs' layer maps along (forward sensitivities,
+        computed with the run: :data:`DIFFERENTIABLE` and the law knots);
+        returned as ``sensitivities``.
     """
     if base is not None and cases is not None:
         raise ValueError("give either base= (one experiment) or cases= (several), not both")
@@ -495,6 +551,7 @@ def sweep(
         case_t = _case_times(t, len(case_list))
         meas = [None] * len(case_list)
     case_layers = _case_layers(n_layers, len(case_list))
+    case_tangents = _case_tangents(tangents, len(case_list))
 
     run_params, run_points, run_case = [], [], []
     for ci, case in enumerate(case_list):
@@ -509,12 +566,13 @@ def sweep(
         "measured": [None if meas[c] is None else meas[c][0] for c in run_case],
         "smoothing": [1 if meas[c] is None else meas[c][2] for c in run_case],
         "n_layers": [case_layers[c] if meas[c] is None else meas[c][0].shape[1] for c in run_case],
+        "tangents": [case_tangents[c] for c in run_case],
         "n_cells": n_cells,
         "rtol": rtol,
         "atol": atol,
         "threads": threads,
     }
-    layers, rmsd, stats = _execute(payload, n, client, progress)
+    layers, rmsd, stats, sens = _execute(payload, n, client, progress)
 
     same_t = all(ct is case_t[0] or np.array_equal(ct, case_t[0]) for ct in case_t)
     same_shape = same_t and len({np.shape(x) for x in layers}) == 1
@@ -527,12 +585,13 @@ def sweep(
         layers=layers_out,
         rmsd=rmsd if measured is not None else None,
         stats=stats,
+        sensitivities=sens if tangents is not None else None,
     )
 
 
 def _execute(payload: dict[str, Any], n: int, client: Any, progress: bool | None):
     """Run the payload locally (rayon) or on a Dask client, in chunks."""
-    keys = ("params", "t", "measured", "smoothing", "n_layers")
+    keys = ("params", "t", "measured", "smoothing", "n_layers", "tangents")
 
     def sub(sl: slice) -> dict[str, Any]:
         return {**payload, **{k: payload[k][sl] for k in keys}}
@@ -560,4 +619,5 @@ def _execute(payload: dict[str, Any], n: int, client: Any, progress: bool | None
     layers = [x for p in parts for x in p[0]]
     rmsd = np.concatenate([p[1] for p in parts])
     stats = [s for p in parts for s in p[2]]
-    return layers, rmsd, stats
+    sens = [x for p in parts for x in p[3]]
+    return layers, rmsd, stats, sens

@@ -9,6 +9,7 @@ baseline included, predicts each experiment from the others.
 
 from __future__ import annotations
 
+import math
 import os
 import sys
 import time
@@ -26,6 +27,7 @@ from granseg.diagnosis.evidence import Evidence, gather
 from granseg.diagnosis.noise import NoiseEstimate, campaign_floor
 from granseg.diagnosis.open_world import OpenWorld, explore
 from granseg.diagnosis.result import DiagnosisJSON, build_result
+from granseg.errors import short_repr
 from granseg.fitting import DEFAULT_N_CELLS, Data, Fit, fit, loo_predict
 from granseg.fitting import causes as catalogue
 from granseg.fitting.threads import one_blas_thread
@@ -104,6 +106,27 @@ def _printer(progress: bool) -> Callable[[str], None]:
     return lambda msg: print(f"[diagnose] {msg}", file=sys.stderr, flush=True)
 
 
+#: Accepted range of each decision threshold (lower, upper; both inclusive; an infinite
+#: gain threshold accepts no cause, which tests use).
+_THRESHOLD_RANGES = {"gain_threshold": (0.0, math.inf), "excess_threshold": (0.0, 100.0),
+                     "coherence_alpha": (0.0, 1.0), "coherence_share": (0.0, 1.0)}
+
+
+def _thresholds(**values: Any) -> tuple[float, ...]:
+    """The decision thresholds as floats, each checked against its range (ValueError naming it)."""
+    out = []
+    for name, v in values.items():
+        lo, hi = _THRESHOLD_RANGES[name]
+        try:
+            f = float(v)
+        except (TypeError, ValueError, OverflowError):
+            raise ValueError(f"{name} = {short_repr(v)} is not a number") from None
+        if isinstance(v, bool) or math.isnan(f) or not lo <= f <= hi:
+            raise ValueError(f"{name} = {short_repr(v)} is out of range: must be in [{lo:g}, {hi:g}]")
+        out.append(f)
+    return tuple(out)
+
+
 def _check_calibration(cal: Calibration, maps: list[Map]) -> None:
     if not isinstance(cal, Calibration) or cal.fit is None or cal.data is None:
         raise ValueError("calibration: expected the Calibration that granseg.calibrate returned")
@@ -169,6 +192,9 @@ def diagnose(
         :mod:`granseg.diagnosis.velocity_check`).
     """
     t_start = time.perf_counter()
+    gain_threshold, excess_threshold, coherence_alpha, coherence_share = _thresholds(
+        gain_threshold=gain_threshold, excess_threshold=excess_threshold, coherence_alpha=coherence_alpha,
+        coherence_share=coherence_share)
     check_outputs(json=json, report=report, force=force)
     candidates = catalogue.build(causes)
     log = _printer(progress)

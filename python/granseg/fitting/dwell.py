@@ -42,8 +42,8 @@ from typing import Any
 
 import numpy as np
 from scipy.optimize import least_squares
-from scipy.signal import lfilter
 
+from granseg import _core
 from granseg.maps import Map
 from granseg.model import defaults, velocity_profile
 
@@ -126,11 +126,9 @@ def moving_average_factor(rho: np.ndarray, n_t: int, window: int) -> np.ndarray:
 
 def lagged(seen: np.ndarray, survival: np.ndarray) -> np.ndarray:
     """The expected share in view (n_t, n_layers) when each layer's grains survive a frame with ``survival``."""
-    out = np.array(seen, dtype=float, copy=True)
-    for j in np.nonzero(survival > 0)[0]:
-        s = float(survival[j])
-        out[:, j] = lfilter([1.0 - s], [1.0, -s], out[:, j], zi=[s * out[0, j]])[0]
-    return out
+    # y[0] = x[0], y[t] = (1 - s) x[t] + s y[t-1]: in the core (scipy's lfilter, one call per
+    # layer, took most of a diagnosis's time)
+    return _core.lagged(np.ascontiguousarray(seen, dtype=float), np.ascontiguousarray(survival, dtype=float))
 
 
 def _counted(m: Map, max_lag: int) -> tuple[np.ndarray, np.ndarray] | None:
@@ -169,7 +167,20 @@ def _speed_per_frame(params: dict[str, float], m: Map) -> np.ndarray:
 def survival(params: dict[str, float], m: Map, width: float) -> np.ndarray:
     """Survival per frame (n_layers,) of a grain in view of map ``m`` when the bed moves with the
     velocity profile of the model parameters ``params`` and the window is ``width`` [m] wide."""
-    return np.exp(-_speed_per_frame(params, m) / width)
+    # every model map of every fit asks, mostly with parameters it asked before (a law knot or
+    # an observation parameter moves nothing here): a small cache keyed by value, per map
+    key = (id(m), m.n_times, float(width), tuple(sorted(params.items())))
+    hit = _SURVIVAL.get(key)
+    if hit is None or hit[0] is not m:
+        if len(_SURVIVAL) >= 4096:
+            _SURVIVAL.clear()
+        value = np.exp(-_speed_per_frame(params, m) / width)
+        value.flags.writeable = False  # shared by every caller
+        hit = _SURVIVAL[key] = (m, value)
+    return hit[1]
+
+
+_SURVIVAL: dict[tuple[Any, ...], tuple[Map, np.ndarray]] = {}
 
 
 def _params(exp: Any, delta_over_H: float, fixed: dict[str, float]) -> dict[str, float]:

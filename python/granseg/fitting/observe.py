@@ -31,17 +31,22 @@ from typing import Any
 
 import numpy as np
 
+from granseg import _core
 from granseg.fitting.dwell import lagged, survival
 from granseg.fitting.effects import Effect, ExpInfo
-from granseg.maps import Map, moving_average
-from granseg.model import sweep
+from granseg.maps import Map
+from granseg.model import DIFFERENTIABLE, LAW_KEYS, sweep
 
-__all__ = ["DEFAULT_N_CELLS", "Data", "model_maps", "residual", "rmsd", "shifted_times"]
+__all__ = ["TANGENT_STEP", "DEFAULT_N_CELLS", "Data", "maps_and_jacobians", "model_maps", "residual", "rmsd",
+           "shifted_times"]
 
 #: Finite-volume cells of the fits' model runs: 6 per layer of the maps. Against
 #: 180 cells the layer means differ by at most 0.0024 and by 0.0005 RMS (steel/PP
 #: and glass/PP, 1 h), far below the maps' noise floors of 0.02-0.05.
 DEFAULT_N_CELLS = 90
+#: Step of the forward difference through the map parameters -> solver parameters (cheap and
+#: smooth), relative to each parameter's finite-difference step.
+TANGENT_STEP = 1e-4
 
 
 @dataclass
@@ -72,6 +77,9 @@ class Data:
     #: model parameters measured per experiment (e.g. delta/H from a velocity profile); they
     #: override what the fitted effect gives, None: nothing measured
     measured: list[dict[str, float]] | None = None
+    #: how fits differentiate the model maps: "sensitivities" (the core's, where a parameter
+    #: allows) or "differences" (forward differences only: the reference)
+    jacobian: str = "sensitivities"
     n_runs: int = 0
     n_sweeps: int = 0
     sweep_seconds: float = 0.0
@@ -118,6 +126,36 @@ def shifted_times(t: np.ndarray, shift: float) -> tuple[np.ndarray, np.ndarray]:
     return request, index
 
 
+def _case(data: Data, effect: Effect, x: Mapping[str, float], i: int) -> dict[str, float]:
+    """The solver parameters of run (x, experiment i): fixed, the effect's, then what was measured."""
+    return {**data.fixed, **effect.solver_params(x, data.exps[i]), **(data.measured[i] if data.measured else {})}
+
+
+def _observed(data: Data, effect: Effect, x: Mapping[str, float], i: int, case: Mapping[str, float],
+              raw: np.ndarray) -> np.ndarray:
+    """What map i shows of the model's layer means ``raw`` at its times (the steps after the solver)."""
+    seen = effect.observe(x, data.exps[i], raw)
+    if data.confusion is not None and data.confusion[i] > 0:
+        seen = data.confusion[i] + (1.0 - 2.0 * data.confusion[i]) * seen
+    if data.dwell_width is not None:
+        # the run's own shear band sets how long its grains stay in view
+        seen = lagged(seen, survival(case, data.maps[i], data.dwell_width))
+    # the model's maps are finite: the core's moving average (the NaN-aware one is for measured maps)
+    return _core.moving_average(np.ascontiguousarray(seen, dtype=float), data.maps[i].smoothing_frames)
+
+
+def _solve(data: Data, runs: Sequence[tuple[dict[str, float], np.ndarray]],
+           n_layers: Sequence[int], tangents: Sequence[list[dict[str, float]]] | None = None) -> Any:
+    """One sweep of (solver parameters, request times) runs, counted on ``data``."""
+    t0 = time.perf_counter()
+    res = sweep(cases=[c for c, _ in runs], t=[t for _, t in runs], n_layers=list(n_layers), progress=False,
+                tangents=None if tangents is None else list(tangents), **data.opts)
+    data.sweep_seconds += time.perf_counter() - t0
+    data.n_runs += len(runs)
+    data.n_sweeps += 1
+    return res
+
+
 def model_maps(data: Data, effect: Effect, runs: Sequence[tuple[Mapping[str, float], int]]
                ) -> list[np.ndarray]:
     """What each run (parameters, experiment index) shows on its map's grid.
@@ -125,29 +163,98 @@ def model_maps(data: Data, effect: Effect, runs: Sequence[tuple[Mapping[str, flo
     One sweep for all runs; returns (n_t_i, n_layers) arrays after time
     shift, observation transform, confusion, dwell and the map's moving average.
     """
-    cases, times, rows = [], [], []
+    cases, requests, rows = [], [], []
     for x, i in runs:
-        exp = data.exps[i]
-        request, index = shifted_times(data.maps[i].t, effect.time_shift(x, exp))
-        cases.append({**data.fixed, **effect.solver_params(x, exp), **(data.measured[i] if data.measured else {})})
-        times.append(request)
+        request, index = shifted_times(data.maps[i].t, effect.time_shift(x, data.exps[i]))
+        cases.append(_case(data, effect, x, i))
+        requests.append(request)
         rows.append(index)
-    t0 = time.perf_counter()
-    res = sweep(cases=cases, t=times, n_layers=[data.maps[i].n_layers for _, i in runs], progress=False,
-                **data.opts)
-    data.sweep_seconds += time.perf_counter() - t0
-    data.n_runs += len(cases)
-    data.n_sweeps += 1
-    out = []
-    for (x, i), case, raw, index in zip(runs, cases, res.layers, rows, strict=True):
-        seen = effect.observe(x, data.exps[i], np.asarray(raw)[index])
-        if data.confusion is not None and data.confusion[i] > 0:
-            seen = data.confusion[i] + (1.0 - 2.0 * data.confusion[i]) * seen
-        if data.dwell_width is not None:
-            # the run's own shear band sets how long its grains stay in view
-            seen = lagged(seen, survival(case, data.maps[i], data.dwell_width))
-        out.append(moving_average(seen, data.maps[i].smoothing_frames, axis=0))
-    return out
+    res = _solve(data, list(zip(cases, requests, strict=True)), [data.maps[i].n_layers for _, i in runs])
+    return [_observed(data, effect, x, i, case, np.asarray(raw)[index])
+            for (x, i), case, raw, index in zip(runs, cases, res.layers, rows, strict=True)]
+
+
+def maps_and_jacobians(data: Data, effect: Effect, x: Mapping[str, float], which: Sequence[int],
+                       steps: Sequence[float]) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """The model maps of experiments ``which`` at ``x`` and their Jacobians, (n_params, n_t, n_layers).
+
+    Column j of experiment i comes from the core's forward sensitivities when
+    parameter j reaches the solver only through parameters it differentiates by
+    (:data:`granseg.model.DIFFERENTIABLE`, the law knots) and leaves the model's
+    clock alone: the direction in solver parameters is a forward difference of
+    step :data:`TANGENT_STEP` x ``steps[j]`` through the cheap parameter map, the
+    solver's part is exact, and what follows the solver (observation transform,
+    confusion, the view's dwell, moving average) is a secant over ``steps[j]``
+    of the model map moved along its sensitivity, as all of it was before. The
+    secant is kept on purpose: the dwell is steep where the bed barely moves
+    (near the lid grains stay in view for hundreds of frames), its exact slope
+    there is several times the secant's, and with it the trust region crawled
+    (a shear-profile correction reached RMSD 0.106 in 15 evaluations, 0.050
+    with the secant; BENCHMARKS.md). Otherwise (a time shift, a density) the
+    column is a forward difference of the whole model of step ``steps[j]``
+    (signed). ``data.jacobian = "differences"`` forces differences everywhere
+    (the reference of the tests and benchmarks). Everything runs in one sweep.
+    """
+    keys = list(x)
+    if data.jacobian not in ("sensitivities", "differences"):
+        raise ValueError(f"jacobian = {data.jacobian!r}: choose 'sensitivities' or 'differences'")
+    exact = data.jacobian == "sensitivities"
+    runs, n_layers, tangents, plans = [], [], [], []
+    for i in which:
+        exp = data.exps[i]
+        case = _case(data, effect, x, i)
+        shift = effect.time_shift(x, exp)
+        request, index = shifted_times(data.maps[i].t, shift)
+        dirs: list[dict[str, float]] = []
+        cols: list[tuple[Any, ...]] = []
+        for j, key in enumerate(keys):
+            # the direction in solver parameters: a small step through the cheap map
+            eps = TANGENT_STEP * steps[j]
+            moved = _case(data, effect, {**x, key: x[key] + eps}, i)
+            tangent = {k: (moved[k] - case[k]) / eps for k in moved if moved[k] != case[k]}
+            xp = {**x, key: x[key] + steps[j]}
+            if exact and effect.time_shift(xp, exp) == shift and all(k in DIFFERENTIABLE or k in LAW_KEYS
+                                                                      for k in tangent):
+                cols.append(("chain", len(dirs) if tangent else None, steps[j], xp, _case(data, effect, xp, i)))
+                if tangent:
+                    dirs.append(tangent)
+            else:
+                xs = {**x, key: x[key] + steps[j]}
+                cols.append(("difference", steps[j], xs, *shifted_times(data.maps[i].t, effect.time_shift(xs, exp))))
+        plans.append((i, case, index, cols))
+        runs.append((case, request))
+        n_layers.append(data.maps[i].n_layers)
+        tangents.append(dirs)
+    extra = []  # the difference columns' runs, in plan order
+    for i, _, _, cols in plans:
+        for col in cols:
+            if col[0] == "difference":
+                extra.append((_case(data, effect, col[2], i), col[3]))
+                n_layers.append(data.maps[i].n_layers)
+                tangents.append([])
+    res = _solve(data, runs + extra, n_layers, tangents)
+    maps, jacs = [], []
+    k_extra = len(runs)
+    for k, (i, case, index, cols) in enumerate(plans):
+        raw, sens = np.asarray(res.layers[k]), np.asarray(res.sensitivities[k])
+        if index.size != raw.shape[0]:  # a delayed clock: rows repeat (else they are the map's own)
+            raw, sens = raw[index], sens[:, index, :]
+        seen = _observed(data, effect, x, i, case, raw)
+        jac = np.empty((len(cols), *seen.shape))  # column by column, each contiguous
+        for j, col in enumerate(cols):
+            if col[0] == "chain":
+                _, d, eps, xp, cp = col
+                moved = raw if d is None else raw + eps * sens[d]
+                np.divide(_observed(data, effect, xp, i, cp, moved) - seen, eps, out=jac[j])
+            else:
+                _, h, xs, _, s_idx = col
+                shifted = np.asarray(res.layers[k_extra])[s_idx]
+                k_extra += 1
+                np.divide(_observed(data, effect, xs, i, _case(data, effect, xs, i), shifted) - seen, h,
+                          out=jac[j])
+        maps.append(seen)
+        jacs.append(jac)
+    return maps, jacs
 
 
 def residual(data: Data, i: int, layers: np.ndarray) -> np.ndarray:

@@ -3,9 +3,11 @@
 :func:`fit` fits any :class:`~granseg.fitting.effects.Effect` to a set of
 experiments of a :class:`~granseg.fitting.observe.Data`. Each residual
 evaluation is one sweep holding every fitted experiment at the trial point
-*and* at the forward-difference points of the Jacobian ((n_params + 1) x
-n_experiments runs at once); the last point is cached so that scipy's
-separate calls for residuals and Jacobian cost one sweep. scipy sees the
+with the core's forward sensitivities of its map, plus a forward-difference
+run for each parameter the core cannot differentiate by (a delayed start, a
+density; :func:`~granseg.fitting.observe.maps_and_jacobians`); the last point
+is cached so that scipy's separate calls for residuals and Jacobian cost one
+sweep. scipy sees the
 problem compressed to p + 1 rows (:func:`compress`, exact: same steps).
 
 Standard errors (:func:`covariance`, :func:`intervals`; the estimators live
@@ -39,7 +41,7 @@ from scipy.optimize import least_squares
 from granseg.fit import weighted_covariance
 from granseg.fitting import uncertainty
 from granseg.fitting.effects import Effect, Param
-from granseg.fitting.observe import Data, model_maps, residual, rmsd
+from granseg.fitting.observe import Data, maps_and_jacobians, model_maps, residual, rmsd
 
 __all__ = ["ERROR_METHODS", "MIN_CLUSTERS", "PRIOR_WEIGHT", "Fit", "compress", "covariance", "evaluate", "factorial",
            "fit", "intervals", "loo_params", "loo_predict"]
@@ -161,25 +163,26 @@ class _Evaluator:
 
     def _evaluate(self, x: np.ndarray) -> tuple[list[np.ndarray], list[np.ndarray], list[np.ndarray]]:
         t0 = time.perf_counter()
+        runs_before = self.data.n_runs
         h = _steps(x, self.params, self.hi)
-        points = [x] + [x + np.eye(x.size)[j] * h[j] for j in range(x.size)]
-        runs = [(dict(zip(self.keys, map(float, p), strict=True)), i) for p in points for i in self.which]
-        layers = model_maps(self.data, self.effect, runs)
+        point = dict(zip(self.keys, map(float, x), strict=True))
+        layers, jacobians = maps_and_jacobians(self.data, self.effect, point, self.which, h)
         n = len(self.which)
         res, jac = [], []
         for k, i in enumerate(self.which):
             mask, w = self.data.masks[i], self.data.weights[i]
-            r0 = residual(self.data, i, layers[k])
-            block = np.empty((r0.size, x.size))
-            for j in range(x.size):  # the data cancel in the difference
-                block[:, j] = (layers[(j + 1) * n + k] - layers[k])[mask] * (w / h[j])
-            res.append(r0)
-            jac.append(block)
+            res.append(residual(self.data, i, layers[k]))
+            J = jacobians[k].reshape(len(self.keys), -1)
+            # (entries, params) as a transposed view of the columns, weighted in place: a
+            # complete map needs no boolean gather and no copy (long maps, many parameters)
+            J = J if mask.all() else J[:, mask.ravel()]
+            J *= w
+            jac.append(J.T)
         ms = float(sum(r @ r for r in res)) / n
         pars = " ".join(f"{k}={v:.5g}" for k, v in zip(self.keys, x, strict=True))
         self.data.log(f"{self.effect.name}: {pars} root mean of the experiments' MSE={ms ** 0.5:.5f} "
-                      f"({len(runs)} runs, {time.perf_counter() - t0:.1f} s)")
-        return res, jac, layers[:n]
+                      f"({self.data.n_runs - runs_before} runs, {time.perf_counter() - t0:.1f} s)")
+        return res, jac, layers
 
     def compressed(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(residual, Jacobian) of the same least-squares problem at x in p + 1 rows (module doc)."""
