@@ -370,10 +370,6 @@ pub fn layer_map_with_sensitivities(
     use crate::stepper::{self, LayerOutput, Scheme, Tridiagonal};
     p.validate()?;
     stepper::validate_run(n_cells, t_out, &tol)?;
-    let len = limits::check_buffer(
-        "the layer map",
-        &[("len(t)", t_out.len()), ("n_layers", n_layers)],
-    )?;
     let scheme = Scheme::default();
     let mut sens = Sensitivities::new(
         tangents,
@@ -382,11 +378,7 @@ pub fn layer_map_with_sensitivities(
         n_layers,
         scheme.tableau().stages(),
     )?;
-    let mut out = LayerOutput::new(
-        LayerMap::new(n_cells, n_layers),
-        n_cells,
-        limits::zeroed(len, "the layer map")?,
-    )?;
+    let mut out = LayerOutput::for_run(n_cells, t_out.len(), n_layers)?;
     let stats = stepper::integrate_core(
         p,
         n_cells,

@@ -379,6 +379,18 @@ pub struct LayerOutput {
 }
 
 impl LayerOutput {
+    /// The output of one run: n_t times of n_layers layers over n_cells cells,
+    /// its size checked before it is allocated.
+    pub fn for_run(n_cells: usize, n_t: usize, n_layers: usize) -> Result<Self, SolveError> {
+        let len =
+            limits::check_buffer("the layer map", &[("len(t)", n_t), ("n_layers", n_layers)])?;
+        LayerOutput::new(
+            LayerMap::new(n_cells, n_layers),
+            n_cells,
+            limits::zeroed(len, "the layer map")?,
+        )
+    }
+
     pub fn new(map: LayerMap, n_cells: usize, layers: Vec<f64>) -> Result<Self, SolveError> {
         Ok(LayerOutput {
             map,
@@ -865,15 +877,7 @@ pub fn layer_map_with_scheme(
     scheme: Scheme,
     n_layers: usize,
 ) -> Result<(Vec<f64>, Stats), SolveError> {
-    let len = limits::check_buffer(
-        "the layer map",
-        &[("len(t)", t_out.len()), ("n_layers", n_layers)],
-    )?;
-    let mut out = LayerOutput::new(
-        LayerMap::new(n_cells, n_layers),
-        n_cells,
-        limits::zeroed(len, "the layer map")?,
-    )?;
+    let mut out = LayerOutput::for_run(n_cells, t_out.len(), n_layers)?;
     let stats = integrate_scheme(
         p,
         n_cells,

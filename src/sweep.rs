@@ -9,7 +9,7 @@ use std::sync::Arc;
 use rayon::prelude::*;
 
 use crate::error::SolveError;
-use crate::layers::{self, LayerMap};
+use crate::layers;
 use crate::limits;
 use crate::params::Params;
 use crate::sensitivity::{self, Tangent};
@@ -84,7 +84,7 @@ pub fn run_one_stoppable(
     // sizes before any allocation
     limits::check_cells(n_cells)?;
     limits::check_output_times("t", n_t)?;
-    let len = limits::check_buffer("the layer map", &[("len(t)", n_t), ("n_layers", n_layers)])?;
+    limits::check_buffer("the layer map", &[("len(t)", n_t), ("n_layers", n_layers)])?;
     if let Some(m) = &spec.measured {
         if m.n_layers == 0 || Some(m.c.len()) != n_t.checked_mul(m.n_layers) {
             return Err(SolveError::InvalidInput(format!(
@@ -103,11 +103,7 @@ pub fn run_one_stoppable(
     spec.params.validate()?;
     stepper::validate_run(n_cells, &spec.t_out, &tol)?;
     let (out, sens, stats) = if spec.tangents.is_empty() {
-        let mut output = stepper::LayerOutput::new(
-            LayerMap::new(n_cells, n_layers),
-            n_cells,
-            limits::zeroed(len, "the layer map")?,
-        )?;
+        let mut output = stepper::LayerOutput::for_run(n_cells, n_t, n_layers)?;
         let stats = stepper::integrate_with_stop(
             &spec.params,
             n_cells,
@@ -303,7 +299,7 @@ mod tests {
             let lean = run_one(&spec, n_cells, tol).unwrap();
             let (field, stats) = stepper::simulate(&params, n_cells, &t, tol).unwrap();
             assert_eq!(lean.stats.steps, stats.steps);
-            let map = LayerMap::new(n_cells, N_LAYERS);
+            let map = layers::LayerMap::new(n_cells, N_LAYERS);
             let mut row = vec![0.0; N_LAYERS];
             for (k, prof) in field.chunks_exact(n_cells).enumerate() {
                 map.apply(prof, &mut row);
