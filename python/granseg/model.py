@@ -362,16 +362,20 @@ def _grid_points(grid: Mapping[str, Iterable[float]] | None) -> list[dict[str, f
         vals = list(np.atleast_1d(np.asarray(vals, dtype=object)))
         if not vals:
             raise ValueError(f"grid: {name} has no values")
-        for v in vals:
-            try:
-                fv = float(v)
-            except (TypeError, ValueError, OverflowError):
-                raise ValueError(f"grid: {name} value {short_repr(v)} is not a finite number") from None
-            if not math.isfinite(fv):
-                raise ValueError(f"grid: {name} value {v!r} is not finite")
         keys.append(name)
-        values.append([float(v) for v in vals])
+        values.append([_finite(v, f"grid: {name} value") for v in vals])
     return [dict(zip(keys, combo, strict=True)) for combo in itertools.product(*values)]
+
+
+def _finite(v: Any, where: str) -> float:
+    """``v`` as a finite float, else ValueError: "<where> <v> is not a finite number"."""
+    try:
+        f = float(v)
+    except (TypeError, ValueError, OverflowError):
+        f = math.nan
+    if not math.isfinite(f):
+        raise ValueError(f"{where} {short_repr(v)} is not a finite number")
+    return f
 
 
 def _measured_entry(m: Any, i: int) -> tuple[np.ndarray, np.ndarray, int]:
@@ -466,13 +470,7 @@ def _case_tangents(tangents: Any, n_cases: int) -> list[list[dict[str, float]] |
                 if k not in DIFFERENTIABLE and k not in _LAW_KEY_SET:
                     raise ValueError(f"tangents[{ci}][{j}]: no sensitivity to {k!r}; the core differentiates "
                                      f"by {', '.join(DIFFERENTIABLE)} and the law knots")
-                try:
-                    fv = float(v)
-                except (TypeError, ValueError, OverflowError):
-                    raise ValueError(f"tangents[{ci}][{j}][{k!r}] = {short_repr(v)} is not a number") from None
-                if not math.isfinite(fv):
-                    raise ValueError(f"tangents[{ci}][{j}][{k!r}] = {v!r} is not finite")
-                d[k] = fv
+                d[k] = _finite(v, f"tangents[{ci}][{j}][{k!r}] =")
             case.append(d)
         out.append(case)
     return out
