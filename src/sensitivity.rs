@@ -355,7 +355,7 @@ pub fn shifted(p: &Params, v: &Tangent, eps: f64) -> Params {
 }
 
 /// One run reduced to its layer map and the layer maps of its sensitivities
-/// along `tangents`: (layers (n_t, n_layers), sensitivities (n_dir, n_t,
+/// along `tangents` (none: an empty second map, nothing differentiated): (layers (n_t, n_layers), sensitivities (n_dir, n_t,
 /// n_layers), stats), all row-major.
 #[allow(clippy::too_many_arguments)]
 pub fn layer_map_with_sensitivities(
@@ -367,30 +367,28 @@ pub fn layer_map_with_sensitivities(
     tangents: Vec<Tangent>,
     stop: &std::sync::atomic::AtomicBool,
 ) -> Result<(Vec<f64>, Vec<f64>, crate::stepper::Stats), SolveError> {
-    use crate::stepper::{self, LayerOutput, Scheme, Tridiagonal};
+    use crate::stepper::{self, Scheme};
     p.validate()?;
     stepper::validate_run(n_cells, t_out, &tol)?;
     let scheme = Scheme::default();
-    let mut sens = Sensitivities::new(
-        tangents,
-        n_cells,
-        t_out.len(),
-        n_layers,
-        scheme.tableau().stages(),
-    )?;
-    let mut out = LayerOutput::for_run(n_cells, t_out.len(), n_layers)?;
-    let stats = stepper::integrate_core(
+    if tangents.is_empty() {
+        let (layers, stats) =
+            stepper::layer_map_run(p, n_cells, t_out, tol, scheme, n_layers, None, stop)?;
+        return Ok((layers, Vec::new(), stats));
+    }
+    let stages = scheme.tableau().stages();
+    let mut sens = Sensitivities::new(tangents, n_cells, t_out.len(), n_layers, stages)?;
+    let (layers, stats) = stepper::layer_map_run(
         p,
         n_cells,
         t_out,
         tol,
         scheme,
-        Tridiagonal::new(n_cells),
-        &mut out,
+        n_layers,
         Some(&mut sens),
         stop,
     )?;
-    Ok((out.layers, sens.layers, stats))
+    Ok((layers, sens.layers, stats))
 }
 
 #[cfg(test)]

@@ -877,17 +877,34 @@ pub fn layer_map_with_scheme(
     scheme: Scheme,
     n_layers: usize,
 ) -> Result<(Vec<f64>, Stats), SolveError> {
-    let mut out = LayerOutput::for_run(n_cells, t_out.len(), n_layers)?;
-    let stats = integrate_scheme(
+    layer_map_run(
         p,
         n_cells,
         t_out,
         tol,
         scheme,
-        Tridiagonal::new(n_cells),
-        &mut out,
+        n_layers,
+        None,
         limits::never(),
-    )?;
+    )
+}
+
+/// The one layer-map run: the layer map and stats of a run with `scheme`,
+/// differentiating it along `sens`'s tangents when given (`sensitivity.rs`).
+#[allow(clippy::too_many_arguments)]
+pub fn layer_map_run(
+    p: &Params,
+    n_cells: usize,
+    t_out: &[f64],
+    tol: Tolerances,
+    scheme: Scheme,
+    n_layers: usize,
+    sens: Option<&mut Sensitivities>,
+    stop: &AtomicBool,
+) -> Result<(Vec<f64>, Stats), SolveError> {
+    let mut out = LayerOutput::for_run(n_cells, t_out.len(), n_layers)?;
+    let matrix = Tridiagonal::new(n_cells);
+    let stats = integrate_core(p, n_cells, t_out, tol, scheme, matrix, &mut out, sens, stop)?;
     Ok((out.layers, stats))
 }
 

@@ -13,7 +13,7 @@ use crate::layers;
 use crate::limits;
 use crate::params::Params;
 use crate::sensitivity::{self, Tangent};
-use crate::stepper::{self, Stats, Tolerances, Tridiagonal};
+use crate::stepper::{self, Stats, Tolerances};
 
 /// A measured map to compare a run with: (n_t, n_layers) row-major, NaN =
 /// no reading, at the run's output times, with the smoothing it records.
@@ -102,29 +102,15 @@ pub fn run_one_stoppable(
     }
     spec.params.validate()?;
     stepper::validate_run(n_cells, &spec.t_out, &tol)?;
-    let (out, sens, stats) = if spec.tangents.is_empty() {
-        let mut output = stepper::LayerOutput::for_run(n_cells, n_t, n_layers)?;
-        let stats = stepper::integrate_with_stop(
-            &spec.params,
-            n_cells,
-            &spec.t_out,
-            tol,
-            Tridiagonal::new(n_cells),
-            &mut output,
-            stop,
-        )?;
-        (output.layers, Vec::new(), stats)
-    } else {
-        sensitivity::layer_map_with_sensitivities(
-            &spec.params,
-            n_cells,
-            &spec.t_out,
-            tol,
-            n_layers,
-            spec.tangents.to_vec(),
-            stop,
-        )?
-    };
+    let (out, sens, stats) = sensitivity::layer_map_with_sensitivities(
+        &spec.params,
+        n_cells,
+        &spec.t_out,
+        tol,
+        n_layers,
+        spec.tangents.to_vec(),
+        stop,
+    )?;
     let (layers, rmsd, sensitivities) = match &spec.measured {
         Some(m) => {
             let smooth = layers::moving_average(&out, n_t, n_layers, m.smoothing_frames);
