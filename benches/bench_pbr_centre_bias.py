@@ -23,7 +23,12 @@ candidate causes, each measured on its own:
     about every view direction).
 
     PYTHONPATH=python python benches/bench_pbr_centre_bias.py [--looks steel-pom pom-pp ...] \
-        [--render] [--json benches/results/pbr_centre_bias.json]
+        [--render] [--json benches/results/pbr_centre_bias.json] [--dir FOLDER]
+
+``--dir`` reads the looks from another folder: the tuning family, other
+packings of the same looks (``python -m granseg.synth.pbr fixtures FOLDER
+--seed-offset 100``), which the detector may be developed on; the committed
+fixtures are what it is judged on.
 """
 
 from __future__ import annotations
@@ -221,17 +226,19 @@ def render_control(heavy: str, light: str, out: Path) -> dict:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    looks = sorted(p.name for p in PBR.iterdir() if (p / "truth.npz").is_file())
-    ap.add_argument("--looks", nargs="+", default=["steel-pom", "pom-pp", "ceramic-pp", "grey-glossy-matte"],
-                    choices=looks)
+    ap.add_argument("--dir", type=Path, default=PBR, help="folder of looks (default: the committed fixtures)")
+    ap.add_argument("--looks", nargs="+", default=["steel-pom", "pom-pp", "ceramic-pp", "grey-glossy-matte"])
     ap.add_argument("--render", action="store_true", help="also render the lighting control (needs mitsuba)")
     ap.add_argument("--json", type=Path, default=None)
     args = ap.parse_args()
+    missing = [look for look in args.looks if not (args.dir / look / "truth.npz").is_file()]
+    if missing:
+        ap.error(f"no look {', '.join(missing)} in {args.dir}")
     out = {}
     for look in args.looks:
-        truth = load_fixture(PBR / look)
+        truth = load_fixture(args.dir / look)
         out[look] = {"a_geometry": geometry(truth), "b_camera_round_trip_px": camera_round_trip(truth),
-                     "c_detector": detector(PBR / look), "c_outline_fit": outline_fit(PBR / look)}
+                     "c_detector": detector(args.dir / look), "c_outline_fit": outline_fit(args.dir / look)}
         print(look, out[look], flush=True)
     if args.render:
         with tempfile.TemporaryDirectory() as tmp:

@@ -42,7 +42,7 @@ than it is, so ``n_phys`` / ``n_heavy_phys`` also count by the true height
 above the plate (layer j: centre in [j, j + 1) D) and the true arc position.
 
 mitsuba is optional (``pip install mitsuba``); only :func:`render_pbr_frames`
-imports it (with Dr.Jit's LLVM back end when a libLLVM >= 16 is installed,
+imports it (with Dr.Jit's LLVM back end when a libLLVM >= 17 is installed,
 else the slower scalar variant). :func:`load_fixture` needs only NumPy and
 OpenCV.
 
@@ -50,6 +50,11 @@ Render the committed test fixtures (``tests/fixtures/pbr``; 2 to 4 minutes
 per look on two shared cores, LLVM back end) with::
 
     python -m granseg.synth.pbr fixtures tests/fixtures/pbr [--force] [--looks glass-pom,...] [--spp N]
+
+and the tuning family (other packings of the same looks, seeds + 100, never
+committed: what a detector change may be developed on) with::
+
+    python -m granseg.synth.pbr fixtures /tmp/pbr-tune --seed-offset 100 --no-verify
 """
 
 from __future__ import annotations
@@ -147,6 +152,10 @@ FIXTURE_D_PX = 34.0
 FIXTURE_SPP = 128
 FIXTURE_JPEG = 88
 FIXTURE_NOISE = 0.7
+# Packings of the fixture looks rendered with seed + TUNING_SEED_OFFSET are
+# the physically based tuning family (never committed, never in a test): the
+# detector may be developed on them, and is judged on the fixtures.
+TUNING_SEED_OFFSET = 100
 
 
 @dataclass
@@ -375,15 +384,21 @@ def _default_camera(size: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
 # --------------------------------------------------------------------------- mitsuba
 
 
+# Dr.Jit's LLVM back end in mitsuba 3.9.1 aborts on libLLVM 16 ("Cannot select:
+# fmaximum") and works on 19 (measured; 17 and 18 not tried). Older ones fall
+# back to the scalar variant, many times slower.
+MIN_LLVM = 17
+
+
 def _find_llvm() -> str | None:
-    """A libLLVM new enough (>= 16) for Dr.Jit's LLVM back end, if one is installed."""
+    """A libLLVM new enough (MIN_LLVM) for Dr.Jit's LLVM back end, if one is installed."""
     best: tuple[int, str] | None = None
     pats = ["/usr/lib/x86_64-linux-gnu/libLLVM*.so*", "/usr/lib/llvm-*/lib/libLLVM*.so*",
             "/usr/lib64/libLLVM*.so*", "/opt/homebrew/opt/llvm/lib/libLLVM.dylib"]
     for pat in pats:
         for p in glob.glob(pat):
             m = re.search(r"(?:llvm-|LLVM-|LLVM\.so\.)(\d+)", p)
-            if m and int(m.group(1)) >= 16 and (best is None or int(m.group(1)) > best[0]):
+            if m and int(m.group(1)) >= MIN_LLVM and (best is None or int(m.group(1)) > best[0]):
                 best = (int(m.group(1)), p)
     return best[1] if best else None
 
@@ -685,7 +700,7 @@ def render_pbr_frames(
     colours : {material: (r, g, b)} linear diffuse albedo overrides.
     spp : samples per pixel of the path tracer.
     second_layer : model the partly hidden second layer of grains.
-    variant : mitsuba variant (default llvm_ad_rgb if a libLLVM >= 16 is
+    variant : mitsuba variant (default llvm_ad_rgb if a libLLVM >= 17 is
         found, else scalar_rgb; or $GRANSEG_MITSUBA_VARIANT).
 
     Returns
@@ -1055,8 +1070,13 @@ def _mask_centres(mi, base: dict[str, Any], pts, radii, uv, d, canvas, spp) -> t
 
 
 def render_fixtures(out: Path, looks: list[str] | None = None, spp: int = FIXTURE_SPP, force: bool = False,
-                    frames: int = FIXTURE_FRAMES, verify: bool = True) -> None:
-    """Render the looks of FIXTURE_LOOKS into out/<look>/ and write out/verification.json."""
+                    frames: int = FIXTURE_FRAMES, verify: bool = True, seed_offset: int = 0) -> None:
+    """Render the looks of FIXTURE_LOOKS into out/<look>/ and write out/verification.json.
+
+    ``seed_offset`` renders other packings of the same looks: the tuning
+    family (TUNING_SEED_OFFSET) that the detector may be developed on, kept
+    apart from the committed fixtures it is judged on.
+    """
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     names = looks or list(FIXTURE_LOOKS)
@@ -1064,6 +1084,7 @@ def render_fixtures(out: Path, looks: list[str] | None = None, spp: int = FIXTUR
     report = json.loads(report_path.read_text()) if report_path.exists() else {}
     for name in names:
         args = dict(FIXTURE_LOOKS[name])
+        args["seed"] += seed_offset
         c0 = args.pop("c0")
         args["experiment"] = {"name": f"pbr-{name}", "c0": c0, **args.get("experiment", {})}
         t0 = time.perf_counter()
@@ -1105,12 +1126,14 @@ def main(argv: list[str] | None = None) -> int:
     fx.add_argument("--frames", type=int, default=FIXTURE_FRAMES)
     fx.add_argument("--no-verify", action="store_true")
     fx.add_argument("--force", action="store_true", help="overwrite existing files")
+    fx.add_argument("--seed-offset", type=int, default=0,
+                    help=f"render other packings of the looks ({TUNING_SEED_OFFSET}: the tuning family)")
     a = ap.parse_args(argv)
     looks = a.looks.split(",") if a.looks else None
     for name in looks or []:
         if name not in FIXTURE_LOOKS:
             ap.error(f"unknown look {name!r}; choose from {', '.join(FIXTURE_LOOKS)}")
-    render_fixtures(a.out_dir, looks, a.spp, a.force, a.frames, not a.no_verify)
+    render_fixtures(a.out_dir, looks, a.spp, a.force, a.frames, not a.no_verify, a.seed_offset)
     return 0
 
 
