@@ -19,11 +19,12 @@ candidate causes, each measured on its own:
     the truth (which of the two the count misses come from), and, with
     ``--render`` (needs mitsuba, about a minute on two cores), a control:
     the same packing rendered under the fixtures' two side panels, without
-    vignetting, and under one panel behind the camera (shading symmetric
-    about every view direction).
+    vignetting, with the panels 600 and 1500 mm from the axis instead of 270,
+    and under one panel behind the camera (shading symmetric about every view
+    direction).
 
     PYTHONPATH=python python benches/bench_pbr_centre_bias.py [--looks steel-pom pom-pp ...] \
-        [--render] [--json benches/results/pbr_centre_bias.json] [--dir FOLDER]
+        [--render [--controls-only]] [--json benches/results/pbr_centre_bias.json] [--dir FOLDER]
 
 ``--dir`` reads the looks from another folder: the tuning family, other
 packings of the same looks (``python -m granseg.synth.pbr fixtures FOLDER
@@ -50,6 +51,7 @@ from granseg.synth.pbr import _Cell, load_fixture
 
 PBR = Path(__file__).resolve().parents[1] / "tests" / "fixtures" / "pbr"
 BAND = 40.0  # px from the window's sides / top and bottom that count as "near" them
+FAR_PANELS_MM = (600.0, 1500.0)  # the fixtures' panels are 270 mm from the cell's axis
 
 
 def _outward(rows: np.ndarray, win) -> dict:
@@ -212,8 +214,13 @@ def render_control(heavy: str, light: str, out: Path) -> dict:
     import granseg.synth.pbr as pbr
 
     pbr.LAMPS.setdefault("behind-camera", [(0.0, 300.0)])  # this script only; 300 mm from the axis
+    # the side panels at the same angles, 2.2x and 5.6x further away: is it how close they are?
+    for dist in FAR_PANELS_MM:
+        pbr.LAMPS.setdefault(f"two-sided-{dist:.0f}", [(-55.0, dist), (55.0, dist)])
     result = {}
     for name, kw in (("two side panels", {}), ("two side panels, no vignetting", {"vignetting": 0.0}),
+                     *((f"two side panels {dist:.0f} mm from the axis", {"lighting": f"two-sided-{dist:.0f}"})
+                       for dist in FAR_PANELS_MM),
                      ("one panel behind the camera", {"lighting": "behind-camera"})):
         folder = out / name.replace(" ", "-").replace(",", "")
         pbr.render_pbr_frames(pbr.fixture_map(2, 0.5), heavy=heavy, light=light, image_size=pbr.FIXTURE_SIZE,
@@ -229,13 +236,14 @@ def main() -> None:
     ap.add_argument("--dir", type=Path, default=PBR, help="folder of looks (default: the committed fixtures)")
     ap.add_argument("--looks", nargs="+", default=["steel-pom", "pom-pp", "ceramic-pp", "grey-glossy-matte"])
     ap.add_argument("--render", action="store_true", help="also render the lighting control (needs mitsuba)")
+    ap.add_argument("--controls-only", action="store_true", help="with --render: only the lighting control")
     ap.add_argument("--json", type=Path, default=None)
     args = ap.parse_args()
     missing = [look for look in args.looks if not (args.dir / look / "truth.npz").is_file()]
     if missing:
         ap.error(f"no look {', '.join(missing)} in {args.dir}")
     out = {}
-    for look in args.looks:
+    for look in [] if args.controls_only else args.looks:
         truth = load_fixture(args.dir / look)
         out[look] = {"a_geometry": geometry(truth), "b_camera_round_trip_px": camera_round_trip(truth),
                      "c_detector": detector(args.dir / look), "c_outline_fit": outline_fit(args.dir / look)}
