@@ -92,10 +92,21 @@ def test_agrees_with_an_independent_scipy_method_of_lines(rho_h, rho_l, c0):
     assert np.max(np.abs(got - expected)) < 1e-3
 
 
-def test_default_tolerances_meet_1e3_on_the_layer_maps():
+# The two hardest of 48 cases drawn across the physical ranges by the
+# default_survey example (seed 20261125): few heavy grains, a bed at steady
+# state long before 3600 s. They missed 1e-3 (2.6e-3 and 1.1e-3) while a clip
+# of the state re-evaluated its derivative (stepper::clipped_derivative).
+SURVEYED_HARD = [
+    dict(rho_h=5528.923646192358, c0=0.2000662011898057, k=0.5509447371591336, delta_over_H=0.16216022093156965),
+    dict(rho_h=6149.4041183836325, c0=0.1587395006306096, k=0.5407121128359318, delta_over_H=0.2311835645426109),
+]
+
+
+@pytest.mark.parametrize("case", [{}, *SURVEYED_HARD], ids=["G-PP", "survey-c0-0.20", "survey-c0-0.16"])
+def test_default_tolerances_meet_1e3_on_the_layer_maps(case):
     t = np.arange(0, 3601, 2.0)
-    fine = granseg.simulate(t=t, n_cells=720, rtol=1e-8, atol=1e-10).layers()
-    assert np.abs(granseg.simulate(t=t).layers() - fine).max() < 1e-3
+    fine = granseg.simulate(**case, t=t, n_cells=1440, rtol=1e-9, atol=1e-11).layers()
+    assert np.abs(granseg.simulate(**case, t=t).layers() - fine).max() < 1e-3
 
 
 def test_initial_profile_and_layers():
