@@ -173,16 +173,10 @@ def main() -> int:
     args = ap.parse_args()
     if args.grids:
         text = grid_ladder(args.repeats)
-        print(text)
-        if args.out:
-            from granseg._io import atomic_write
-
-            atomic_write(args.out, lambda p: p.write_text(text), force=True)
-        return 0
-    single = single_run(args.repeats)
-    sweep_t = paper_sweep(max(3, args.repeats // 3))
-    mem = peak_memory()
-    text = report(single, sweep_t, mem)
+    else:
+        single = single_run(args.repeats)
+        sweep_t = paper_sweep(max(3, args.repeats // 3))
+        text = report(single, sweep_t, peak_memory())
     print(text)
     if args.out:
         from granseg._io import atomic_write
