@@ -138,3 +138,23 @@ def test_the_compressed_problem_has_the_cost_of_every_step_of_the_full_one(sizes
     for s in rng.normal(size=(3, p)):
         assert np.sum((j_small @ s + r_small) ** 2) == pytest.approx(np.sum((J @ s + r) ** 2), rel=1e-9)
     np.testing.assert_allclose(j_small.T @ r_small, J.T @ r, atol=1e-9)
+
+
+def test_a_compacted_fit_keeps_its_results_and_gives_its_jacobian_again():
+    """A diagnosis keeps every fit it makes; compact() drops the residual and Jacobian blocks
+    (most of a fit's memory) and what asks for them later gets them evaluated again, equal."""
+    from granseg.diagnosis.selection import model_jacobians
+    from granseg.fitting import compact, covariance, fit
+
+    maps = campaign(conditions=FIVE[:3], effect="load_dependent_shear_band", strength=0.5, seed=3)
+    cal = calibrate(maps, progress=False)
+    effect = REGISTRY["load_dependent_shear_band"]()
+    full = fit(cal.data, effect, x0=cal.fit.values(), max_nfev=3)
+    small = compact(full)
+    assert small.jac == [] and small.res == [] and full.jac  # the original is untouched
+    np.testing.assert_array_equal(small.x, full.x)
+    np.testing.assert_array_equal(small.cov, full.cov)
+    np.testing.assert_allclose(covariance(cal.data, small, "jacobian"), covariance(cal.data, full, "jacobian"),
+                               rtol=1e-10, atol=1e-14)
+    for a, b in zip(model_jacobians(cal.data, small), model_jacobians(cal.data, full), strict=True):
+        np.testing.assert_allclose(a, b, rtol=1e-10, atol=1e-14)

@@ -23,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-from granseg.fitting import Data, Fit, fit, laws, loo_predict
+from granseg.fitting import Data, Fit, compact, fit, laws, loo_predict
 
 __all__ = ["CONTENDER", "LAW_NFEV", "LOO_NFEV", "N_SCORED", "OpenWorld", "explore", "scored"]
 
@@ -86,7 +86,7 @@ def explore(data: Data, base: Fit, baseline_held_out: np.ndarray, *, max_nfev: i
     held out (module doc)."""
     t0 = time.perf_counter()
     T = time_scale(data)
-    fits = {L.name: fit(data, L, x0=base.values(), max_nfev=max_nfev) for L in laws.build(T, selected)}
+    fits = {L.name: compact(fit(data, L, x0=base.values(), max_nfev=max_nfev)) for L in laws.build(T, selected)}
     held, layers, gains = {}, {}, {}
     for name in scored(fits, base.rmsd_mean):
         held[name], layers[name], _ = loo_predict(data, fits[name], exact=True, max_nfev=LOO_NFEV, start="full")

@@ -28,7 +28,7 @@ from granseg.diagnosis.noise import NoiseEstimate, campaign_floor
 from granseg.diagnosis.open_world import OpenWorld, explore
 from granseg.diagnosis.result import DiagnosisJSON, build_result
 from granseg.errors import short_repr
-from granseg.fitting import DEFAULT_N_CELLS, Data, Fit, fit, loo_predict
+from granseg.fitting import DEFAULT_N_CELLS, Data, Fit, compact, fit, loo_predict
 from granseg.fitting import causes as catalogue
 from granseg.fitting.threads import one_blas_thread
 from granseg.maps import Map, check_accepted
@@ -222,7 +222,7 @@ def diagnose(
     fits = {}
     for i, c in enumerate(candidates, 1):
         log(f"candidate {i}/{len(candidates)}: {c.name}")
-        fits[c.name] = fit(data, c, x0=base.values(), max_nfev=max_nfev)
+        fits[c.name] = compact(fit(data, c, x0=base.values(), max_nfev=max_nfev))
     log(f"scoring the baseline and {len(fits)} candidates on experiments they did not see")
     timing["candidates"] = time.perf_counter() - t_start - timing["baseline"]
     held, held_layers = {}, {}

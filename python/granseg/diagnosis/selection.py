@@ -61,6 +61,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from granseg.fitting import Data, ExpInfo, Fit
+from granseg.fitting.solve import blocks
 from granseg.maps import Map
 
 __all__ = ["COHERENCE_ALPHA", "COHERENCE_SHARE", "EXCESS_THRESHOLD", "GAIN_THRESHOLD", "Coherence", "Misfit",
@@ -198,9 +199,10 @@ def model_jacobians(data: Data, f: Fit) -> list[np.ndarray]:
     """The model maps' derivatives (n_t, n_layers, q) by a fit's parameters, from its
     stored weighted residual Jacobian (:class:`granseg.fitting.Fit`)."""
     out = []
+    _, jac = blocks(data, f)  # a compacted fit's are evaluated again
     for k, i in enumerate(f.which):
-        full = np.zeros(data.maps[i].c.shape + (f.jac[k].shape[1],))
-        full[data.masks[i]] = f.jac[k] / data.weights[i]
+        full = np.zeros(data.maps[i].c.shape + (jac[k].shape[1],))
+        full[data.masks[i]] = jac[k] / data.weights[i]
         out.append(full)
     return out
 

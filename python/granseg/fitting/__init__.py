@@ -32,6 +32,7 @@ from granseg.fitting.effects import (
 from granseg.fitting.observe import DEFAULT_N_CELLS, Data, model_maps, residual, rmsd, shifted_times
 from granseg.fitting.solve import (
     Fit,
+    compact,
     covariance,
     evaluate,
     factorial,
@@ -51,6 +52,7 @@ __all__ = [
     "ExpInfo",
     "Fit",
     "Param",
+    "compact",
     "causes",
     "confusion",
     "dwell",

@@ -33,7 +33,7 @@ from __future__ import annotations
 import itertools
 import time
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.optimize import least_squares
@@ -43,8 +43,8 @@ from granseg.fitting import uncertainty
 from granseg.fitting.effects import Effect, Param
 from granseg.fitting.observe import Data, maps_and_jacobians, model_maps, residual, rmsd
 
-__all__ = ["ERROR_METHODS", "MIN_CLUSTERS", "PRIOR_WEIGHT", "Fit", "compress", "covariance", "evaluate", "factorial",
-           "fit", "intervals", "loo_params", "loo_predict"]
+__all__ = ["ERROR_METHODS", "MIN_CLUSTERS", "PRIOR_WEIGHT", "Fit", "compact", "compress", "covariance", "evaluate",
+           "factorial", "fit", "intervals", "loo_params", "loo_predict"]
 
 #: Weight of the parameter priors, in units of the stacked sum of squares
 #: (sum over experiments of MSE): one prior sd costs PRIOR_WEIGHT**2.
@@ -267,6 +267,24 @@ def evaluate(data: Data, effect: Effect, params: Sequence[Param], x: Mapping[str
     return f
 
 
+def compact(f: Fit) -> Fit:
+    """``f`` without its weighted residual and Jacobian blocks, which are most of its memory
+    (on the open-world test campaign, 14 experiments, about 33 MB a fit, and a diagnosis keeps
+    every fit it makes). What the fit's results need stays: x, its covariance, the maps, the
+    leave-one-out sums. A Jacobian asked of it later (:func:`covariance` by ``"jacobian"``,
+    the coherence test's model derivatives) comes from :func:`evaluate` at ``x`` again."""
+    return replace(f, res=[], jac=[])
+
+
+def blocks(data: Data, f: Fit) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """The weighted residual and Jacobian blocks of ``f`` at its ``x``: its own, or evaluated
+    again for a :func:`compact` one."""
+    if f.jac or not f.which or not f.params:
+        return f.res, f.jac
+    again = evaluate(data, f.effect, f.params, f.values(), f.which)
+    return again.res, again.jac
+
+
 def _assemble(data: Data, effect: Effect, params: list[Param], x: np.ndarray, which: list[int],
               res: list[np.ndarray], jac: list[np.ndarray], layers: list[np.ndarray], errors: str) -> Fit:
     G = np.stack([j.T @ j for j in jac])
@@ -299,7 +317,8 @@ def covariance(data: Data, f: Fit, method: str) -> np.ndarray:
         return uncertainty.cluster_covariance(f.A, f.g)
     if method == "jackknife":
         return uncertainty.jackknife_covariance(np.array([loo_params(f, i) for i in f.which]))
-    jac, r = np.vstack(f.jac), np.concatenate(f.res)
+    res, jac = blocks(data, f)
+    jac, r = np.vstack(jac), np.concatenate(res)
     w = np.concatenate([np.full(int(data.masks[i].sum()), data.weights[i]) for i in f.which])
     return weighted_covariance(jac, r, w, p) * _smoothing_factor(data, f.which)
 
