@@ -1022,6 +1022,8 @@ pub fn integrate_core<M: NewtonMatrix>(
                 if let Some(sens) = sens.as_deref_mut() {
                     sens.step(&mut op, tab, t, h, t_new, &w.y, &w.k, t_out, next)?;
                 }
+                // the unclipped state, for clipped_derivative (w.delta is the Newton
+                // iteration's scratch, free once the step is accepted)
                 w.delta.copy_from_slice(&w.y_new);
                 let clip = enforce_bounds(&mut w.y_new);
                 if clip > 0.0 {
@@ -1421,7 +1423,8 @@ mod tests {
             rtol: 1e-9,
             atol: 1e-11,
         };
-        let (reference, _) = layer_map_with_scheme(&p, 1440, &t, fine, Scheme::Esdirk3, 15).unwrap();
+        let (reference, _) =
+            layer_map_with_scheme(&p, 1440, &t, fine, Scheme::Esdirk3, 15).unwrap();
         let (got, stats) =
             layer_map_with_scheme(&p, 180, &t, Tolerances::default(), Scheme::Esdirk3, 15).unwrap();
         let err = got
