@@ -197,9 +197,10 @@ def coherence(maps: Sequence[Map], exps: Sequence[ExpInfo], layers: Sequence[np.
 
 def model_jacobians(data: Data, f: Fit) -> list[np.ndarray]:
     """The model maps' derivatives (n_t, n_layers, q) by a fit's parameters, from its
-    stored weighted residual Jacobian (:class:`granseg.fitting.Fit`)."""
+    weighted residual Jacobian (:class:`granseg.fitting.Fit`; evaluated again for a
+    :func:`granseg.fitting.compact` one)."""
     out = []
-    _, jac = blocks(data, f)  # a compacted fit's are evaluated again
+    _, jac = blocks(data, f)
     for k, i in enumerate(f.which):
         full = np.zeros(data.maps[i].c.shape + (jac[k].shape[1],))
         full[data.masks[i]] = jac[k] / data.weights[i]

@@ -64,7 +64,8 @@ class Fit:
     ``error_method``, ``layers[i]`` the model map of experiment i (every
     experiment, the unfitted ones too), ``rmsd[i]`` its RMSD [-]; ``res`` and
     ``jac`` the weighted residual and Jacobian blocks of the fitted ones at
-    ``x``, ``G``/``g`` their J_i'J_i and J_i'r_i, ``A``/``grad`` the sums plus
+    ``x`` (empty after :func:`compact`; :func:`blocks` gives them either way),
+    ``G``/``g`` their J_i'J_i and J_i'r_i, ``A``/``grad`` the sums plus
     the prior (for the leave-one-out step).
     """
 
