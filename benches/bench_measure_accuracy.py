@@ -59,7 +59,8 @@ def score(r, a) -> dict:
            "rmsd": float(np.sqrt(np.nanmean((a.c_raw - r.c_raw) ** 2))),
            "frame_layer_count_error": float(per_frame.mean()),
            "worst_layer_count_error": float(count.max()), "worst_layer": int(count.argmax()),
-           "quality_ok": bool(a.quality.ok), "failed_checks": [c.name for c in a.quality.failed]}
+           "quality_ok": bool(a.quality.ok), "failed_checks": [c.name for c in a.quality.failed],
+           "centres_settled": next((c.value for c in a.quality.checks if c.name == "centres_settled"), None)}
     for name, errs in errors.items():
         e = np.concatenate(errs)
         out[f"{name}_bias_px"] = [round(float(v), 3) for v in e.mean(axis=0)]
@@ -103,7 +104,8 @@ def main() -> None:
             print(f"{name:28s} seed {seed:3d}: recall {s['recall']:.3f} precision {s['precision']:.3f} "
                   f"RMSD {s['rmsd']:.4f} frame-layer count {s['frame_layer_count_error']:.3f} "
                   f"worst layer {s['worst_layer_count_error']:.3f} quality "
-                  f"{'ok' if s['quality_ok'] else 'FAILED ' + ','.join(s['failed_checks'])} | bias heavy "
+                  f"{'ok' if s['quality_ok'] else 'FAILED ' + ','.join(s['failed_checks'])} "
+                  f"(centres_settled {s['centres_settled']:.2f}) | bias heavy "
                   f"{s['heavy_bias_px']} light {s['light_bias_px']} px, p95 {s['heavy_p95_px']:.2f} "
                   f"{s['light_p95_px']:.2f} px", flush=True)
         pooled = float((np.abs(detected - true) / true).max())

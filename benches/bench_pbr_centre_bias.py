@@ -177,11 +177,19 @@ def outline_fit(folder: Path) -> dict:
     theta = np.linspace(0, 2 * np.pi, n_rays, endpoint=False)
     for tp, img in zip(truth.particles, truth.images, strict=True):
         crop, _ = remove_wall_glare(worker.undistort(img), d, worker.bed_rows)
-        smooth = _smooth(crop, d, worker.templates.sign)
         tp = tp[tp[:, 4] > 0]
         start, radius = tp[:, :2] - worker.crop[:2], tp[:, 2] / 2
-        moved = fit_outlines(smooth, start, radius, d).centres - start
+        # each sphere on the image of its material's polarity: with a polarity
+        # per material the heavy band's templates come first (detect.learn_templates)
+        signs = worker.templates.signs
+        sign = np.where(tp[:, 3] > 0, signs[0], signs[-1]).astype(int)
+        smooths = _smooth(crop, d, signs)
+        moved = np.zeros_like(start)
+        for s in np.unique(sign):
+            mine = sign == s
+            moved[mine] = fit_outlines(smooths[int(s)], start[mine], radius[mine], d).centres - start[mine]
         rows.append(np.column_stack([tp[:, :2], moved]))
+        smooth = smooths[int(signs[-1])]  # the rims below: the light material's polarity (one on the looks studied)
         # the edge finder of fit_outlines, once, from the true centres
         steps = np.arange(0.65 * radius.max(), 1.4 * radius.max(), 0.5)
         px = start[:, 0, None, None] + steps * np.cos(theta)[None, :, None]

@@ -33,13 +33,13 @@ def test_disk_scores_find_a_sphere_where_it_is(d):
     yy, xx = np.mgrid[0:size, 0:size] - half
     patch = (200.0 * (np.hypot(xx, yy) <= d / 2) + 20.0).astype(np.float32)
     templates = Templates((patch,), np.zeros((1, 2)), np.array([d / 2]), np.zeros((1, 3)),
-                          (_disk(size, (0.0, 0.0), 1.05 * d / 2),), d)
+                          (_disk(size, (0.0, 0.0), 1.05 * d / 2),), d, np.array([1]))
     x0, y0 = 3.3 * d + 0.37, 2.1 * d - 0.21
     h, w = int(4.5 * d), int(6.5 * d)
     yy, xx = np.mgrid[0:h, 0:w]
     alpha = np.clip(d / 2 - np.hypot(xx - x0, yy - y0) + 0.5, 0, 1)
     image = (20.0 + 200.0 * alpha).astype(np.float32)
-    scores = DiskScores.of(image, templates)
+    scores = DiskScores.of({1: image}, templates)
     assert scores.scale == pytest.approx(min(1.0, 32.0 / d), rel=0.05)
     row, col = np.unravel_index(np.argmax(scores.maps[0]), scores.maps[0].shape)
     x, y = scores.to_image(np.array([col], float), np.array([row], float), np.zeros((1, 2)))
@@ -86,7 +86,7 @@ def test_polarity_learned_and_empty_ground_rejected(negative):
     if negative:
         image = 255 - image
     templates = learn_templates(image, d)
-    assert templates.sign == (-1 if negative else 1)
+    assert templates.signs.tolist() == [-1 if negative else 1] * len(templates.patches)
     assert templates.rim_limits is not None
     found = detect_particles(image, d, templates=templates)
     dist, idx = cKDTree(found[:, :2]).query(centres)
@@ -96,6 +96,60 @@ def test_polarity_learned_and_empty_ground_rejected(negative):
     assert found[:, 1].min() > 3.0 * d  # nor above the bed
     accept_all = detect_particles(image, d, templates=replace(templates, rim_limits=None))
     assert (accept_all[:, 1] < 3.0 * d).sum() == 6
+
+
+def _two_material_scene(d: float, seed: int = 0) -> tuple[np.ndarray, np.ndarray, float]:
+    """Rows of disks: above the middle darker than their (bright) gaps, below brighter than their
+    (dark) gaps, like transparent glass above matte POM; the centres and the middle's row."""
+    rng = np.random.default_rng(seed)
+    h, w = int(10 * d), int(12 * d)
+    centres = []
+    for row, y in enumerate(np.arange(0.8 * d, h - 0.6 * d, 0.93 * d)):
+        for x in np.arange(0.8 * d + 0.5 * d * (row % 2), w - 0.6 * d, 1.04 * d):
+            centres.append((x + rng.uniform(-0.02, 0.02) * d, y + rng.uniform(-0.02, 0.02) * d))
+    centres = np.array(centres)
+    yy, xx = np.mgrid[0:h, 0:w].astype(float)
+    middle = h / 2
+    image = np.where(yy < middle, 150.0, 40.0)
+    for x, y in centres:
+        rho = np.hypot(xx - x, yy - y) / (d / 2)
+        alpha = np.clip(d / 2 * (1 - rho) + 0.5, 0, 1)
+        shade = 30.0 + 40.0 * rho ** 2 if y < middle else 190.0 - 60.0 * rho ** 2
+        image = image * (1 - alpha) + shade * alpha
+    image += rng.normal(0, 3, image.shape)
+    return np.clip(image, 0, 255).astype(np.uint8), centres, middle
+
+
+def test_each_material_keeps_its_own_polarity():
+    """Spheres darker than their surroundings above, brighter below: one polarity for the frame finds
+    half of them (the other half's gaps instead); learned per band of the stratified start, all."""
+    d = 26.0
+    image, centres, middle = _two_material_scene(d)
+    top = centres[:, 1] < middle
+    bands = ((0.0, middle - 0.75 * d), (middle + 0.75 * d, float(image.shape[0])))
+    recall = {}
+    for name, given in (("one", None), ("bands", bands)):
+        templates = learn_templates(image, d, bands=given)
+        found = detect_particles(image, d, templates=templates)
+        dist, _ = cKDTree(found[:, :2]).query(centres)
+        recall[name] = ((dist[top] < 0.3 * d).mean(), (dist[~top] < 0.3 * d).mean())
+    assert min(recall["one"]) < 0.5, recall
+    assert templates.signs.tolist() == [-1, 1]
+    assert min(recall["bands"]) >= 0.98, recall
+    assert len(found) <= len(centres)  # nothing in the gaps
+    assert np.median(dist) < 0.2
+
+
+def test_outline_fit_reports_its_last_step():
+    """A centre started 2 px off moves about 2 px in one iteration and settles within a few."""
+    d = 26.0
+    image, centres = _disk_scene(d)
+    start = centres + np.array([2.0, 0.0])
+    radii = np.full(len(centres), d / 2)
+    one = fit_outlines(image.astype(np.float32), start, radii, d, iterations=1)
+    assert np.median(one.step) == pytest.approx(2.0, abs=0.3)
+    settled = fit_outlines(image.astype(np.float32), start, radii, d, iterations=4)
+    assert np.percentile(settled.step, 90) < 0.1
 
 
 def test_fit_outlines_takes_more_rays_than_remap_rows():

@@ -54,7 +54,7 @@ def test_identical_materials_are_flagged_not_split(tmp_path, look):
     assert "class_separation" in failed and a.classes.separation.cv_accuracy < 0.8
 
 
-def _first_frame_checks(heavy_of):
+def _first_frame_checks(heavy_of, settle=None):
     """Quality of a perfect stratified first frame whose classes are then set by ``heavy_of``."""
     rng = np.random.default_rng(0)
     h = rng.uniform(0.5, 14.5, 140)  # heights [d] of the first frame's spheres
@@ -66,7 +66,15 @@ def _first_frame_checks(heavy_of):
         n[i] = np.bincount(layer, minlength=15)
         nh[i] = np.bincount(layer[heavy], minlength=15)
     return assess(n=n, n_heavy=nh, c0=0.5, first_heights=h, first_heavy=heavy, scores=np.full(140, 0.9),
-                  p_heavy=None, separation=None, n_bad_frames=0, wall_detections=0.0)
+                  settle=settle, p_heavy=None, separation=None, n_bad_frames=0, wall_detections=0.0)
+
+
+def test_centres_that_do_not_settle_are_flagged():
+    """A tenth of the spheres still moving by a pixel in the outline fit's last step fails the check."""
+    quiet = _first_frame_checks(lambda truth: truth, settle=np.full(140, 0.05))
+    assert quiet.ok
+    restless = np.where(np.arange(140) % 8 == 0, 1.0, 0.05)  # an eighth of them
+    assert [c.name for c in _first_frame_checks(lambda truth: truth, settle=restless).failed] == ["centres_settled"]
 
 
 def test_consistency_checks_catch_a_wrong_class_assignment():

@@ -104,13 +104,16 @@ class Outlines:
     centres: (m, 2) x, y [px]; radius: (m,) fitted radius [px] (the expected
     one where too few rays agreed); strength: (m, k) sharpness of each ray's
     edge (outward drop per px less its local mean; 0 where none);
-    inlier: (m, k) the rays whose edge agrees with the fitted circle.
+    inlier: (m, k) the rays whose edge agrees with the fitted circle;
+    step: (m,) how far [px] the last iteration moved each centre (small once
+    the fit has settled).
     """
 
     centres: np.ndarray
     radius: np.ndarray
     strength: np.ndarray
     inlier: np.ndarray
+    step: np.ndarray
 
 
 def outline_centres(smooth: np.ndarray, centres: np.ndarray, radii: np.ndarray, d: float,
@@ -143,7 +146,7 @@ def fit_outlines(smooth: np.ndarray, centres: np.ndarray, radii: np.ndarray, d: 
     c = np.asarray(centres, dtype=float).copy()
     radius = np.asarray(radii, dtype=float)
     if len(c) == 0:
-        return Outlines(c.reshape(0, 2), radius.copy(), np.zeros((0, n_rays)), np.zeros((0, n_rays), bool))
+        return Outlines(c.reshape(0, 2), radius.copy(), np.zeros((0, n_rays)), np.zeros((0, n_rays), bool), np.zeros(0))
     fitted = radius.copy()
     theta = np.linspace(0, 2 * np.pi, n_rays, endpoint=False)
     ray = np.column_stack([np.cos(theta), np.sin(theta)])
@@ -186,9 +189,10 @@ def fit_outlines(smooth: np.ndarray, centres: np.ndarray, radii: np.ndarray, d: 
             scale = np.maximum(0.7, 2.5 * np.median(resid, axis=1, keepdims=True))
             w = (ok & (resid < scale)).astype(float) * wt
         good = (w > 0).sum(axis=1) >= 6
-        c[good] += np.clip(sol[good, :2], -3.0, 3.0)
+        move = np.where(good[:, None], np.clip(sol[:, :2], -3.0, 3.0), 0.0)
+        c += move
         fitted = np.where(good, radius + sol[:, 2], radius)
-    return Outlines(c, fitted, np.where(ok, peak, 0.0), w > 0)
+    return Outlines(c, fitted, np.where(ok, peak, 0.0), w > 0, np.hypot(*move.T))
 
 
 def _sample(image: np.ndarray, px: np.ndarray, py: np.ndarray) -> np.ndarray:

@@ -20,6 +20,7 @@ from granseg.constants import D_P
 from granseg.maps import moving_average, save_map
 from granseg.measure.camera import Undistorter
 from granseg.measure.classify import (
+    MARGIN,
     MaterialClasses,
     classify_by_ranges,
     learn_classes,
@@ -63,7 +64,8 @@ class FrameSpheres:
     template; features: appearance (classify.FEATURES); heavy, p_heavy: the
     class and its probability (p_heavy None with explicit colour ranges);
     wall: detections left out as hemispheres of the lid or plate (count);
-    glare: the most light the wall's reflections added [grey levels], taken off.
+    glare: the most light the wall's reflections added [grey levels], taken off;
+    settle: how far [px] the outline fit's last iteration moved each centre.
     """
 
     x: np.ndarray
@@ -71,6 +73,7 @@ class FrameSpheres:
     r: np.ndarray
     score: np.ndarray
     features: np.ndarray
+    settle: np.ndarray
     wall: int = 0
     glare: float = 0.0
     heavy: np.ndarray | None = None
@@ -292,7 +295,15 @@ class _FrameWorker:
     def learn(self, image: np.ndarray) -> None:
         """Learn the spheres' appearances from one frame (kept None if it shows too few spheres)."""
         crop, _ = remove_wall_glare(self.undistort(_bgr(image)), self.exp.particle_diameter_px, self.bed_rows)
-        self.templates = learn_templates(crop, self.exp.particle_diameter_px)
+        self.templates = learn_templates(crop, self.exp.particle_diameter_px, bands=self._material_bands())
+
+    def _material_bands(self) -> tuple[tuple[float, float], tuple[float, float]]:
+        """Rows of the crop (top, bottom) holding only heavy spheres and only light ones in the
+        stratified first frame: above and below the interface at (1 - c0) H, MARGIN layers clear of it."""
+        x0, y0, x1, y1 = self.exp.window
+        layer = (y1 - y0) / N_LAYERS
+        interface = y1 - (1.0 - self.exp.c0) * (y1 - y0) - self.crop[1]
+        return ((y0 - self.crop[1], interface - MARGIN * layer), (interface + MARGIN * layer, y1 - self.crop[1]))
 
     def __call__(self, name: str, image: np.ndarray) -> tuple[FrameSpheres, np.ndarray]:
         if (image.shape[1], image.shape[0]) != self.size:
@@ -300,7 +311,7 @@ class _FrameWorker:
                            f"{self.size[0]} x {self.size[1]}")
         d = self.exp.particle_diameter_px
         crop, glare = remove_wall_glare(self.undistort(image), d, self.bed_rows)
-        found = detect_particles(crop, d, templates=self.templates)
+        found = detect_particles(crop, d, templates=self.templates, details=True)
         x, y = found[:, 0] + self.crop[0], found[:, 1] + self.crop[1]
         inside = in_window(x, y, self.exp.window)
         # hemispheres fixed to the lid and the plate sit on the wall line,
@@ -310,7 +321,7 @@ class _FrameWorker:
         if not keep.any():
             raise BadFrame(f"{name}: no spheres detected in the window")
         feats = sphere_features(crop, found[keep, :2], d)
-        return FrameSpheres(x[keep], y[keep], found[keep, 2], found[keep, 3], feats,
+        return FrameSpheres(x[keep], y[keep], found[keep, 2], found[keep, 3], feats, found[keep, 5],
                             wall=int((inside & ~clear).sum()), glare=glare), crop
 
 
@@ -494,6 +505,7 @@ def _assess(result: Analysis) -> Quality:
         n=result.n, n_heavy=result.n_heavy, c0=result.experiment.c0,
         first_heights=height(first.y, result.experiment.window), first_heavy=first.heavy,
         scores=np.concatenate([s.score for s in good]),
+        settle=np.concatenate([s.settle for s in good]),
         p_heavy=np.concatenate([s.p_heavy for s in good]) if learned else None,
         separation=result.classes.separation if learned else None,
         n_bad_frames=len(result.bad_frames),

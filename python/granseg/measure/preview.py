@@ -11,6 +11,7 @@ import numpy as np
 from granseg._io import atomic_path, cv2_path
 from granseg.measure.classify import AMBIGUOUS
 from granseg.measure.layers import N_LAYERS
+from granseg.measure.quality import SETTLE_PX
 
 __all__ = ["check_previews", "draw_preview", "preview_path", "write_previews"]
 
@@ -73,10 +74,13 @@ def draw_preview(crop: np.ndarray, result: Any, i: int) -> np.ndarray:
         cv2.line(img, to_px(x0, yy), to_px(x1, yy), (230, 230, 230), 1, cv2.LINE_AA)
     cv2.rectangle(img, to_px(x0, y0), to_px(x1, y1), (255, 255, 255), 2, cv2.LINE_AA)
     p = s.p_heavy if s.p_heavy is not None else np.where(s.heavy, 1.0, 0.0)
-    for x, y, r, h, ph in zip(s.x, s.y, s.r, s.heavy, p, strict=True):
+    for x, y, r, h, ph, step in zip(s.x, s.y, s.r, s.heavy, p, s.settle, strict=True):
         colour = AMBIGUOUS_BGR if AMBIGUOUS[0] < ph < AMBIGUOUS[1] else HEAVY_BGR if h else LIGHT_BGR
         cv2.circle(img, to_px(x, y), int(round(r * scale * 0.92)), colour, 2, cv2.LINE_AA)
-        cv2.circle(img, to_px(x, y), 2, colour, -1, cv2.LINE_AA)
+        if step > SETTLE_PX:  # a centre the outline fit still moves (quality check centres_settled)
+            cv2.drawMarker(img, to_px(x, y), FAIL_BGR, cv2.MARKER_TILTED_CROSS, 9, 2, cv2.LINE_AA)
+        else:
+            cv2.circle(img, to_px(x, y), 2, colour, -1, cv2.LINE_AA)
     body = np.hstack([img, _panel(img.shape[0], result, i, to_px(0, y0)[1], to_px(0, y1)[1])])
     return np.vstack([_header(body.shape[1], result, i), body])
 
@@ -93,7 +97,9 @@ def _header(width: int, result: Any, i: int) -> np.ndarray:
     cv2.putText(band, "heavy", (8, 44), font, 0.45, HEAVY_BGR, 2, cv2.LINE_AA)
     cv2.putText(band, "light", (70, 44), font, 0.45, LIGHT_BGR, 2, cv2.LINE_AA)
     cv2.putText(band, "ambiguous", (130, 44), font, 0.45, AMBIGUOUS_BGR, 2, cv2.LINE_AA)
-    cv2.putText(band, f"{result.experiment.heavy} / {result.experiment.light}", (240, 44), font, 0.45, dark,
+    cv2.drawMarker(band, (236, 40), FAIL_BGR, cv2.MARKER_TILTED_CROSS, 9, 2, cv2.LINE_AA)
+    cv2.putText(band, "unsettled", (246, 44), font, 0.45, FAIL_BGR, 1, cv2.LINE_AA)
+    cv2.putText(band, f"{result.experiment.heavy} / {result.experiment.light}", (340, 44), font, 0.45, dark,
                 1, cv2.LINE_AA)
     if failed:
         text = "QUALITY FAILED: " + ", ".join(c.name for c in q.failed)

@@ -22,7 +22,7 @@ import numpy as np
 
 from granseg.measure.outline import ring_centre
 
-__all__ = ["DiskScores", "Templates", "build_templates", "find_spheres"]
+__all__ = ["DiskScores", "Templates", "build_templates", "find_spheres", "join_templates"]
 
 TEMPLATE_HALF = 0.75  # template half-size [d]: the sphere, its outline and the gaps around it
 DISK = 1.05  # radius of the matched disk [sphere radii]: the sphere and its outline
@@ -41,10 +41,11 @@ class Templates:
     radii: (k,) sphere radius [px]; colours: (k, c) mean colour of the group's
     sphere middles (as :func:`_middle_colours` measures it); disks: per group,
     the sphere's disk as a float32 mask over the patch; d: particle diameter [px];
-    sign: +1 if the spheres are brighter than their surroundings, -1 if darker
-    (the patches are then of the inverted grey image, where spheres are bright);
-    rim_limits: (k,) per group, the lowest rim score of a sphere (see
-    :func:`granseg.measure.detect._examine`), None to accept every match.
+    signs: (k,) per group, +1 if its spheres are brighter than their
+    surroundings, -1 if darker (its patch is then of the inverted grey image,
+    where its spheres are bright); rim_limits: (k,) per group, the lowest rim
+    score of a sphere (see :func:`granseg.measure.detect._examine`), None to
+    accept every match.
     """
 
     patches: tuple[np.ndarray, ...]
@@ -53,7 +54,7 @@ class Templates:
     colours: np.ndarray
     disks: tuple[np.ndarray, ...]
     d: float
-    sign: int = 1
+    signs: np.ndarray
     rim_limits: np.ndarray | None = None
 
     @property
@@ -61,12 +62,22 @@ class Templates:
         return int(np.ceil(TEMPLATE_HALF * self.d))
 
 
+def join_templates(parts: list[Templates]) -> Templates:
+    """One set of templates holding the groups of each of ``parts`` (learned apart, rim limits dropped)."""
+    return Templates(tuple(p for t in parts for p in t.patches), np.concatenate([t.offsets for t in parts]),
+                     np.concatenate([t.radii for t in parts]), np.concatenate([t.colours for t in parts]),
+                     tuple(m for t in parts for m in t.disks), parts[0].d,
+                     np.concatenate([t.signs for t in parts]))
+
+
 def build_templates(smooth: np.ndarray, image: np.ndarray, centres: np.ndarray, d: float,
-                    centred: bool = False, sign: int = 1) -> Templates:
+                    centred: bool = False, sign: int = 1, one_group: bool = False) -> Templates:
     """Mean grey patch of ``smooth`` per colour group of the spheres at ``centres`` (m, 2).
 
     The groups are the two colour clusters of the spheres' middles in the
-    BGR ``image``. The sphere in each mean patch is located by
+    BGR ``image`` (one group with ``one_group``: spheres known to be of one
+    material). ``smooth`` shows the spheres bright (inverted when ``sign`` is
+    -1). The sphere in each mean patch is located by
     :func:`ring_centre`; with ``centred`` (patches cut around refined
     centres) the offset is zero by definition and only the radius is measured.
     """
@@ -74,7 +85,7 @@ def build_templates(smooth: np.ndarray, image: np.ndarray, centres: np.ndarray, 
     size = 2 * half + 1
     patches = np.stack([cv2.getRectSubPix(smooth, (size, size), (float(x), float(y))) for x, y in centres])
     colours = _middle_colours(image, centres, d)
-    groups = _appearance_groups(colours)
+    groups = np.zeros(len(centres), dtype=int) if one_group else _appearance_groups(colours)
     means, offsets, radii, mean_colours, disks = [], [], [], [], []
     for g in np.unique(groups):
         mean = np.ascontiguousarray(patches[groups == g].mean(axis=0), dtype=np.float32)
@@ -86,7 +97,7 @@ def build_templates(smooth: np.ndarray, image: np.ndarray, centres: np.ndarray, 
         mean_colours.append(colours[groups == g].mean(axis=0))
         disks.append(_disk(size, offset, DISK * r))
     return Templates(tuple(means), np.array(offsets, dtype=float), np.array(radii, dtype=float),
-                     np.array(mean_colours, dtype=float), tuple(disks), float(d), int(sign))
+                     np.array(mean_colours, dtype=float), tuple(disks), float(d), np.full(len(means), int(sign)))
 
 
 def _disk(size: int, offset, radius: float) -> np.ndarray:
@@ -165,22 +176,28 @@ class DiskScores:
     scale: float  # shrunk size / true size (the templates' own, within a pixel of the image's)
 
     @classmethod
-    def of(cls, smooth: np.ndarray, templates: Templates) -> DiskScores:
+    def of(cls, smooth: dict[int, np.ndarray], templates: Templates) -> DiskScores:
+        """``smooth``: the grey image by sign (+1 as is, -1 inverted); each group is matched on its own sign's."""
         scale = min(1.0, MATCH_DIAMETER_PX / templates.d)
         size = 2 * templates.half + 1
         small_size = size if scale == 1.0 else max(3, int(round(size * scale)) | 1)
         scale = small_size / size
-        image, patches, disks = smooth, templates.patches, templates.disks
+        patches, disks = templates.patches, templates.disks
         if small_size != size:
-            image = cv2.resize(smooth, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA)
             patches = [cv2.resize(t, (small_size, small_size), interpolation=cv2.INTER_AREA) for t in patches]
             disks = [_disk(small_size, off * scale, DISK * r * scale)
                      for off, r in zip(templates.offsets, templates.radii, strict=True)]
         half = (small_size - 1) // 2
         pad = half + SEARCH_PX + 2
-        padded = cv2.copyMakeBorder(image, pad, pad, pad, pad, cv2.BORDER_REPLICATE)
-        padded -= padded.mean()  # keeps the float32 sums of squares precise
-        maps = np.stack([_masked_correlation(padded, t, m) for t, m in zip(patches, disks, strict=True)])
+        padded = {}
+        for sign in np.unique(templates.signs).tolist():
+            image = smooth[sign]
+            if small_size != size:
+                image = cv2.resize(image, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA)
+            padded[sign] = cv2.copyMakeBorder(image, pad, pad, pad, pad, cv2.BORDER_REPLICATE)
+            padded[sign] -= padded[sign].mean()  # keeps the float32 sums of squares precise
+        maps = np.stack([_masked_correlation(padded[int(s)], t, m)
+                         for t, m, s in zip(patches, disks, templates.signs, strict=True)])
         return cls(maps, pad, half, scale)
 
     def to_image(self, col: np.ndarray, row: np.ndarray, offset: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -198,24 +215,32 @@ class DiskScores:
         return np.rint(col).astype(int), np.rint(row).astype(int)
 
 
-def find_spheres(smooth: np.ndarray, image: np.ndarray, templates: Templates) -> np.ndarray:
+def find_spheres(smooth: dict[int, np.ndarray], image: np.ndarray, templates: Templates) -> np.ndarray:
     """Spheres in one frame: (m, 5) x, y, radius [px], disk correlation, group.
 
-    ``smooth`` is the lightly blurred grey image, ``image`` the BGR one
-    (for the colours that decide the groups).
+    ``smooth`` is the lightly blurred grey image by sign (+1 as is, -1
+    inverted; those of the templates' signs), ``image`` the BGR one (for the
+    colours that decide the groups).
     """
     scores = DiskScores.of(smooth, templates)
-    found = _peaks(scores, templates)
+    # Groups of opposite polarity are searched apart: a gap between bright
+    # spheres is a dark blob and matches a dark sphere's template as well as
+    # the spheres match theirs, and found together its peak would hide the
+    # three spheres around it (the detector settles such overlaps once every
+    # candidate's outline is known, detect._one_per_place).
+    found = np.concatenate([_peaks(scores, templates, templates.signs == s) for s in np.unique(templates.signs)])
     found = _colour_groups(found, image, templates)
     found = _locate(scores, found, templates)
     return _keep(found)
 
 
-def _peaks(scores: DiskScores, templates: Templates) -> np.ndarray:
-    """Local maxima of the best group's score, at most one within 0.7 diameter: (m, 5)."""
+def _peaks(scores: DiskScores, templates: Templates, groups: np.ndarray) -> np.ndarray:
+    """Local maxima of the best of ``groups``' (mask over the groups) scores, at most one within 0.7
+    diameter: (m, 5)."""
     d = templates.d
-    best = np.argmax(scores.maps, axis=0)
-    score = scores.maps.max(axis=0)
+    maps = np.where(groups[:, None, None], scores.maps, -np.inf)
+    best = np.argmax(maps, axis=0)
+    score = maps.max(axis=0)
     size = max(3, int(0.6 * d * scores.scale) | 1)
     peak = (score >= cv2.dilate(score, np.ones((size, size), np.uint8))) & (score > MIN_SCORE)
     peak[[0, -1], :] = peak[:, [0, -1]] = False
@@ -243,7 +268,13 @@ def _colour_groups(found: np.ndarray, image: np.ndarray, templates: Templates) -
     if len(templates.patches) < 2 or len(found) == 0:
         return found
     colour = _middle_colours(image, found[:, :2], templates.d)
-    group = np.argmin(((colour[:, None, :] - templates.colours[None]) ** 2).sum(axis=2), axis=1)
+    distance = ((colour[:, None, :] - templates.colours[None]) ** 2).sum(axis=2)
+    # never to a group of the other polarity: the polarity was found by the
+    # search (find_spheres), and transparent glass takes the colour of what
+    # lies behind it (glass among glass went to the POM group by colour)
+    sign = templates.signs[found[:, 4].astype(int)]
+    distance[sign[:, None] != templates.signs[None, :]] = np.inf
+    group = np.argmin(distance, axis=1)
     out = found.copy()
     out[:, :2] += templates.offsets[group] - templates.offsets[found[:, 4].astype(int)]
     out[:, 2] = templates.radii[group]

@@ -1,0 +1,131 @@
+"""``granseg analyze`` on physically based looks, look by look, and which polarities it chose (issue 9).
+
+For every look of a folder rendered by ``python -m granseg.synth.pbr fixtures
+FOLDER`` (the committed fixtures by default): recall of the spheres in the
+window (a truth sphere with a detection within 0.4 D), c_raw RMSD and per-frame
+layer counts (mean over frames and layers of |n - n_true| / n_true) against
+the truth, the ``centres_settled`` figure and the quality verdict. With
+``--polarities`` also what the detector's learning saw in the first frame: the
+polarity of each band of the stratified start, and, where they differ, the two
+bands' spheres per row with one polarity and with each material's own (the
+richer band's over the other's) and which set the criterion prefers, the one
+kept (:func:`granseg.measure.detect.learn_templates`). ``--choice one`` /
+``each`` keeps one polarity / each material's own wherever the bands'
+polarities differ, whatever the criterion says: the maps of the choice not
+taken.
+
+    PYTHONPATH=python python benches/bench_pbr_looks.py [--dir FOLDER] [--looks glass-pom ...] \\
+        [--polarities] [--choice auto|one|each] [--json FILE]
+
+The folders: ``tests/fixtures/pbr`` (the fixtures, judged on); the tuning
+family (``--seed-offset 100``, developed on); a held-out family
+(``--seed-offset 200``, rendered once to check a decision made on the tuning
+family, then left alone).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+import granseg.measure.detect as detect
+from granseg._io import save_json
+from granseg.measure import analyze
+from granseg.synth.pbr import load_fixture
+
+PBR = Path(__file__).resolve().parents[1] / "tests" / "fixtures" / "pbr"
+
+
+def _spy_on_learning(choice: str = "auto") -> list[dict]:
+    """Record what learn_templates decides: band polarities and both sets' band imbalance; with
+    ``choice`` "one" or "each" force that set to be kept where the bands' polarities differ."""
+    seen: list[dict] = []
+    polarity, imbalance = detect._polarity, detect._band_imbalance
+
+    def band_polarity(image, candidates, d):
+        sign, seeds = polarity(image, candidates, d)
+        seen.append({"polarity": sign})
+        return sign, seeds
+
+    def band_imbalance(image, templates, bands):
+        value = imbalance(image, templates, bands)
+        seen.append({"signs": templates.signs.tolist(), "ratio": float(np.exp(value))})
+        if choice == "auto":
+            return value
+        split = len(np.unique(templates.signs)) > 1
+        return float(split) if choice == "one" else float(not split)
+
+    detect._polarity, detect._band_imbalance = band_polarity, band_imbalance
+    return seen
+
+
+def measure(folder: Path, look: str, seen: list[dict]) -> dict:
+    truth = load_fixture(folder / look)
+    seen.clear()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        a = analyze(folder / look, smooth=1, save=False, progress=False, workers=2)
+    d = a.experiment.particle_diameter_px
+    found = total = 0
+    for i, s in enumerate(a.spheres):
+        p = truth.particles[i]
+        p = p[p[:, 4] > 0]
+        if s is None or len(p) == 0:
+            total += len(p)
+            continue
+        dist = np.hypot(*(p[:, None, :2] - np.column_stack([s.x, s.y])[None]).transpose(2, 0, 1))
+        found += int((dist.min(axis=1) < 0.4 * d).sum())
+        total += len(p)
+    checks = {c.name: c for c in a.quality.checks}
+    out = {"recall": found / max(total, 1),
+           "rmsd": float(np.sqrt(np.nanmean((a.c_raw - truth.c_raw) ** 2))),
+           "frame_layer_count_error": float(np.mean(np.abs(a.n - truth.n)[truth.n > 0] / truth.n[truth.n > 0])),
+           "centres_settled": float(checks["centres_settled"].value) if "centres_settled" in checks else None,
+           "quality_ok": bool(a.quality.ok), "failed_checks": [c.name for c in a.quality.failed]}
+    # the whole frame's polarity comes first, then one per band (learn_templates' order)
+    bands = [e["polarity"] for e in seen if "polarity" in e][1:3]
+    sets = [e for e in seen if "signs" in e]
+    out["band_polarities"] = bands
+    if len(sets) == 2:
+        out["spheres_per_row_ratio"] = {"one": sets[0]["ratio"], "each_its_own": sets[1]["ratio"]}
+        out["criterion_prefers"] = "each its own" if sets[1]["ratio"] < sets[0]["ratio"] else "one"
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--dir", type=Path, default=PBR, help="folder of rendered looks (default: the fixtures)")
+    ap.add_argument("--looks", nargs="+", default=None, help="looks to measure (default: every one)")
+    ap.add_argument("--polarities", action="store_true", help="also report the polarities learned")
+    ap.add_argument("--choice", choices=("auto", "one", "each"), default="auto",
+                    help="force the set of templates kept where the bands' polarities differ (implies --polarities)")
+    ap.add_argument("--json", type=Path, default=None, help="also write the figures here")
+    args = ap.parse_args()
+    looks = args.looks or sorted(p.name for p in args.dir.iterdir() if (p / "truth.npz").is_file())
+    args.polarities |= args.choice != "auto"
+    seen = _spy_on_learning(args.choice) if args.polarities else []
+    results = {}
+    for look in looks:
+        r = results[look] = measure(args.dir, look, seen)
+        settled = "-" if r["centres_settled"] is None else f"{r['centres_settled']:.2f}"
+        line = (f"{look:18s} recall {r['recall']:.3f}  c_raw RMSD {r['rmsd']:.3f}  per-frame layer counts "
+                f"{100 * r['frame_layer_count_error']:4.1f} %  centres_settled {settled}  "
+                f"{'ok' if r['quality_ok'] else 'flagged: ' + ', '.join(r['failed_checks'])}")
+        if args.polarities:
+            line += f"  | bands {r['band_polarities']}"
+            if "criterion_prefers" in r:
+                ratio = r["spheres_per_row_ratio"]
+                line += (f", spheres per row {ratio['one']:.3f} / {ratio['each_its_own']:.3f}, the criterion "
+                         f"prefers: {r['criterion_prefers']}")
+        print(line, flush=True)
+    if args.json is not None:
+        save_json(args.json, {"command": " ".join(sys.argv), "dir": str(args.dir), "choice": args.choice,
+                              "results": results}, force=True)
+
+
+if __name__ == "__main__":
+    main()
