@@ -48,6 +48,16 @@ def test_disk_scores_find_a_sphere_where_it_is(d):
     assert (back[0][0], back[1][0]) == (col, row)
 
 
+def _rows(rng: np.random.Generator, d: float, ys: tuple[float, float], xs: tuple[float, float]) -> np.ndarray:
+    """Centres (m, 2) of staggered rows of spheres of diameter d, rows 0.93 d and spheres 1.04 d
+    apart, jittered by 2 % of d, from ys[0] to ys[1] and xs[0] to xs[1]."""
+    centres = []
+    for row, y in enumerate(np.arange(ys[0], ys[1], 0.93 * d)):
+        for x in np.arange(xs[0] + 0.5 * d * (row % 2), xs[1], 1.04 * d):
+            centres.append((x + rng.uniform(-0.02, 0.02) * d, y + rng.uniform(-0.02, 0.02) * d))
+    return np.array(centres)
+
+
 def _disk_scene(d: float, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
     """Bright, shaded disks in rows with gaps on a dark ground, and their centres.
 
@@ -56,11 +66,7 @@ def _disk_scene(d: float, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
     """
     rng = np.random.default_rng(seed)
     h, w = int(9 * d), int(14 * d)
-    centres = []
-    for row, y in enumerate(np.arange(3.6 * d, h - 0.8 * d, 0.93 * d)):
-        for x in np.arange(0.9 * d + 0.5 * d * (row % 2), w - 0.8 * d, 1.04 * d):
-            centres.append((x + rng.uniform(-0.02, 0.02) * d, y + rng.uniform(-0.02, 0.02) * d))
-    centres = np.array(centres)
+    centres = _rows(rng, d, (3.6 * d, h - 0.8 * d), (0.9 * d, w - 0.8 * d))
     small = [(x, 2.2 * d) for x in np.arange(1.5 * d, w - d, 2.2 * d)]
     yy, xx = np.mgrid[0:h, 0:w].astype(float)
     image = np.full((h, w), 40.0)
@@ -103,11 +109,7 @@ def _two_material_scene(d: float, seed: int = 0) -> tuple[np.ndarray, np.ndarray
     (dark) gaps, like transparent glass above matte POM; the centres and the middle's row."""
     rng = np.random.default_rng(seed)
     h, w = int(10 * d), int(12 * d)
-    centres = []
-    for row, y in enumerate(np.arange(0.8 * d, h - 0.6 * d, 0.93 * d)):
-        for x in np.arange(0.8 * d + 0.5 * d * (row % 2), w - 0.6 * d, 1.04 * d):
-            centres.append((x + rng.uniform(-0.02, 0.02) * d, y + rng.uniform(-0.02, 0.02) * d))
-    centres = np.array(centres)
+    centres = _rows(rng, d, (0.8 * d, h - 0.6 * d), (0.8 * d, w - 0.6 * d))
     yy, xx = np.mgrid[0:h, 0:w].astype(float)
     middle = h / 2
     image = np.where(yy < middle, 150.0, 40.0)
