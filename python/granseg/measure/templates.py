@@ -238,8 +238,9 @@ def _peaks(scores: DiskScores, templates: Templates, groups: np.ndarray) -> np.n
     """Local maxima of the best of ``groups``' (mask over the groups) scores, at most one within 0.7
     diameter: (m, 5)."""
     d = templates.d
-    maps = np.where(groups[:, None, None], scores.maps, -np.inf)
-    best = np.argmax(maps, axis=0)
+    index = np.flatnonzero(groups)
+    maps = scores.maps if len(index) == len(scores.maps) else scores.maps[index]  # no copy with one polarity
+    best = index[np.argmax(maps, axis=0)]
     score = maps.max(axis=0)
     size = max(3, int(0.6 * d * scores.scale) | 1)
     peak = (score >= cv2.dilate(score, np.ones((size, size), np.uint8))) & (score > MIN_SCORE)
