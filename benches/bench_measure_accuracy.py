@@ -17,6 +17,11 @@ lighting=diffuse``; VALUE is read as JSON when it parses).
         --json benches/results/measure_accuracy.json
     PYTHONPATH=python python benches/bench_measure_accuracy.py --scenes all --seeds 7 8 \
         --json benches/results/measure_accuracy_all.json
+
+``--smeared always`` keeps the classes learned with smeared copies too
+(what analyze did before the blur test), ``never`` those learned from
+sharp spheres only; each run's line says which the test kept and how many
+of the two's disagreements lay within 3 diameters of the plate.
 """
 
 from __future__ import annotations
@@ -60,12 +65,26 @@ def score(r, a) -> dict:
            "frame_layer_count_error": float(per_frame.mean()),
            "worst_layer_count_error": float(count.max()), "worst_layer": int(count.argmax()),
            "quality_ok": bool(a.quality.ok), "failed_checks": [c.name for c in a.quality.failed],
-           "centres_settled": next((c.value for c in a.quality.checks if c.name == "centres_settled"), None)}
+           "centres_settled": next((c.value for c in a.quality.checks if c.name == "centres_settled"), None),
+           **_blur_figures(a)}
     for name, errs in errors.items():
         e = np.concatenate(errs)
         out[f"{name}_bias_px"] = [round(float(v), 3) for v in e.mean(axis=0)]
         out[f"{name}_p95_px"] = float(np.percentile(np.hypot(*e.T), 95))
     return out
+
+
+def _blur_figures(a) -> dict:
+    """Which classes were kept (learned with smeared copies or not) and the blur test's figures."""
+    keys = ("classes_learned_smeared", "blur_disagreements", "blur_disagreements_near_plate", "evidence_against_blur")
+    return {k: a.quality.figures.get(k) for k in keys}
+
+
+def force_smeared(choice: str) -> None:
+    """``always`` / ``never``: keep the smear-trained classes whatever the blur test says (the
+    maps of the previous commit / of classes learned from sharp spheres only); ``auto``: the test."""
+    import granseg.measure.classify as classify
+    classify.BLUR_EVIDENCE = {"auto": classify.BLUR_EVIDENCE, "always": np.inf, "never": -1.0}[choice]
 
 
 def _setting(item: str) -> tuple[str, object]:
@@ -86,8 +105,11 @@ def main() -> None:
                     help="scene names, or 'all' for every scene of the three groups")
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                     help="override a render_frames setting of every scene")
+    ap.add_argument("--smeared", choices=("auto", "always", "never"), default="auto",
+                    help="keep the classes learned with smeared copies: as the blur test says, always, never")
     ap.add_argument("--json", type=Path, default=None, help="also write the figures here")
     args = ap.parse_args()
+    force_smeared(args.smeared)
     overrides = dict(_setting(item) for item in args.set)
     scenes = scene_names() if "all" in args.scenes else args.scenes
     results = {}
@@ -105,7 +127,9 @@ def main() -> None:
                   f"RMSD {s['rmsd']:.4f} frame-layer count {s['frame_layer_count_error']:.3f} "
                   f"worst layer {s['worst_layer_count_error']:.3f} quality "
                   f"{'ok' if s['quality_ok'] else 'FAILED ' + ','.join(s['failed_checks'])} "
-                  f"(centres_settled {s['centres_settled']:.2f}) | bias heavy "
+                  f"(centres_settled {s['centres_settled']:.2f}; smeared classes "
+                  f"{'kept' if s['classes_learned_smeared'] else 'not kept'}, "
+                  f"{s['blur_disagreements_near_plate']}/{s['blur_disagreements']} near the plate) | bias heavy "
                   f"{s['heavy_bias_px']} light {s['light_bias_px']} px, p95 {s['heavy_p95_px']:.2f} "
                   f"{s['light_p95_px']:.2f} px", flush=True)
         pooled = float((np.abs(detected - true) / true).max())

@@ -15,7 +15,7 @@ polarities differ, whatever the criterion says: the maps of the choice not
 taken.
 
     PYTHONPATH=python python benches/bench_pbr_looks.py [--dir FOLDER] [--looks glass-pom ...] \\
-        [--polarities] [--choice auto|one|each] [--json FILE]
+        [--polarities] [--choice auto|one|each] [--smeared auto|always|never] [--json FILE]
 
 The folders: ``tests/fixtures/pbr`` (the fixtures, judged on); the tuning
 family (``--seed-offset 100``, developed on); a held-out family
@@ -36,6 +36,9 @@ import granseg.measure.detect as detect
 from granseg._io import save_json
 from granseg.measure import analyze
 from granseg.synth.pbr import load_fixture
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from bench_measure_accuracy import _blur_figures, force_smeared  # noqa: E402
 
 PBR = Path(__file__).resolve().parents[1] / "tests" / "fixtures" / "pbr"
 
@@ -85,7 +88,8 @@ def measure(folder: Path, look: str, seen: list[dict]) -> dict:
            "rmsd": float(np.sqrt(np.nanmean((a.c_raw - truth.c_raw) ** 2))),
            "frame_layer_count_error": float(np.mean(np.abs(a.n - truth.n)[truth.n > 0] / truth.n[truth.n > 0])),
            "centres_settled": float(checks["centres_settled"].value) if "centres_settled" in checks else None,
-           "quality_ok": bool(a.quality.ok), "failed_checks": [c.name for c in a.quality.failed]}
+           "quality_ok": bool(a.quality.ok), "failed_checks": [c.name for c in a.quality.failed],
+           **_blur_figures(a)}
     # the whole frame's polarity comes first, then one per band (learn_templates' order)
     bands = [e["polarity"] for e in seen if "polarity" in e][1:3]
     sets = [e for e in seen if "signs" in e]
@@ -103,8 +107,11 @@ def main() -> None:
     ap.add_argument("--polarities", action="store_true", help="also report the polarities learned")
     ap.add_argument("--choice", choices=("auto", "one", "each"), default="auto",
                     help="force the set of templates kept where the bands' polarities differ (implies --polarities)")
+    ap.add_argument("--smeared", choices=("auto", "always", "never"), default="auto",
+                    help="keep the classes learned with smeared copies: as the blur test says, always, never")
     ap.add_argument("--json", type=Path, default=None, help="also write the figures here")
     args = ap.parse_args()
+    force_smeared(args.smeared)
     looks = args.looks or sorted(p.name for p in args.dir.iterdir() if (p / "truth.npz").is_file())
     args.polarities |= args.choice != "auto"
     seen = _spy_on_learning(args.choice) if args.polarities else []
@@ -114,7 +121,9 @@ def main() -> None:
         settled = "-" if r["centres_settled"] is None else f"{r['centres_settled']:.2f}"
         line = (f"{look:18s} recall {r['recall']:.3f}  c_raw RMSD {r['rmsd']:.3f}  per-frame layer counts "
                 f"{100 * r['frame_layer_count_error']:4.1f} %  centres_settled {settled}  "
-                f"{'ok' if r['quality_ok'] else 'flagged: ' + ', '.join(r['failed_checks'])}")
+                f"{'ok' if r['quality_ok'] else 'flagged: ' + ', '.join(r['failed_checks'])}  smeared classes "
+                f"{'kept' if r['classes_learned_smeared'] else 'not kept'} "
+                f"({r['blur_disagreements_near_plate']}/{r['blur_disagreements']} near the plate)")
         if args.polarities:
             line += f"  | bands {r['band_polarities']}"
             if "criterion_prefers" in r:
@@ -124,6 +133,7 @@ def main() -> None:
         print(line, flush=True)
     if args.json is not None:
         save_json(args.json, {"command": " ".join(sys.argv), "dir": str(args.dir), "choice": args.choice,
+                              "smeared": args.smeared,
                               "results": results}, force=True)
 
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import csv
 import json
 import warnings
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -13,8 +14,10 @@ from granseg.cli import main
 from granseg.errors import FlaggedMapError, QualityWarning
 from granseg.maps import check_accepted, load_map
 from granseg.measure import analyze
+from granseg.measure.classify import BLUR_ZONE, blur_test
 from granseg.measure.quality import Quality, assess
 from granseg.synth import render_frames
+from granseg.synth.scenes import render_scene
 
 SMALL = dict(particle_diameter_px=20, image_size=(400, 480))
 
@@ -132,3 +135,42 @@ def test_cli_strict_exit_and_detections_csv(tmp_path, capsys):
     assert main(["analyze", str(bad), "--no-progress", "--strict"]) == 3
     err = capsys.readouterr().err
     assert "WARNING" in err and "class_separation" in err
+
+
+# --------------------------------------------------------------------------- motion blur
+
+
+def test_blur_test_keeps_smeared_classes_only_for_disagreements_near_the_plate():
+    rng = np.random.default_rng(3)
+    height = rng.uniform(0.5, 14.5, 1000)
+    sharp = rng.random(1000) < 0.5
+    near = np.flatnonzero(height < BLUR_ZONE)[:12]
+    anywhere = rng.choice(1000, 12, replace=False)
+    # a few disagreements cannot tell: the smear-trained classes stay
+    for differ, smeared in ((near, True), (anywhere, False), (near[:2], True), (anywhere[:2], True), ([], True)):
+        other = sharp.copy()
+        other[np.asarray(differ, dtype=int)] ^= True
+        test = blur_test(height, sharp, other)
+        assert test.smeared is smeared, test
+        assert test.disagree == len(differ)
+
+
+def test_smeared_classes_are_kept_for_blurred_footage_only(tmp_path, capsys):
+    """The plate's motion blur (a 2-D apparatus look) keeps the smear-trained classes; the
+    physically based glossy-over-matte footage, with no blur, keeps the sharp ones: trained on
+    smeared copies too, 4 % of its matte spheres were taken for glossy (BENCHMARKS.md)."""
+    r = render_scene("apparatus-G-POM-50-jpeg", 4, seed=9, out_dir=tmp_path / "blur")
+    a = analyze(r.source, smooth=1, save=False, progress=False, workers=2)
+    figures = a.quality.figures
+    assert figures["classes_learned_smeared"], figures
+    assert figures["blur_disagreements_near_plate"] >= 0.8 * figures["blur_disagreements"] > 0
+    pbr = Path(__file__).parent / "fixtures" / "pbr" / "grey-glossy-matte"
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", QualityWarning)
+        b = analyze(pbr, smooth=1, save=False, progress=False, workers=2)
+    assert not b.quality.figures["classes_learned_smeared"], b.quality.figures
+    assert b.quality.figures["evidence_against_blur"] > 100
+    # the record survives the map file, and analyze says which classes it kept
+    assert json.loads(Quality.from_json(a.quality.to_json()).to_json())["figures"]["classes_learned_smeared"]
+    main(["analyze", str(pbr), "--out", str(tmp_path / "map.npz"), "--no-progress", "--smooth", "1"])
+    assert "learned from sharp spheres only (motion blur ruled out)" in capsys.readouterr().out

@@ -64,6 +64,12 @@ def run(args: argparse.Namespace) -> int:
     glare = result.quality.figures.get("wall_glare_grey_levels", 0.0)
     if glare >= 10:
         print(f"lamp reflections on the wall taken off: up to {glare:.0f} grey levels")
+    figures = result.quality.figures
+    if figures.get("blur_disagreements"):  # the classes learned with and without smeared copies differ
+        kept = ("also learned from smeared copies (motion blur not ruled out)" if figures["classes_learned_smeared"]
+                else "learned from sharp spheres only (motion blur ruled out)")
+        print(f"classes {kept}: of the {figures['blur_disagreements']} spheres the two sets of classes "
+              f"class differently, {figures['blur_disagreements_near_plate']} lie within 3 diameters of the plate")
     step = float(result.t[1] - result.t[0]) if len(result.t) > 1 else 0.0
     print(f"map written to {result.out} (smoothing: {result.smoothing_frames} frames = "
           f"{result.smoothing_frames * step:.4g} s of recording)")

@@ -7,7 +7,7 @@ import os
 import warnings
 from collections import deque
 from concurrent.futures import Future, ThreadPoolExecutor
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -22,6 +22,7 @@ from granseg.measure.camera import Undistorter
 from granseg.measure.classify import (
     MARGIN,
     MaterialClasses,
+    blur_test,
     classify_by_ranges,
     learn_classes,
     smeared_features,
@@ -482,19 +483,29 @@ def _classify(spheres: list[FrameSpheres | None], exp: Experiment,
         return None
     i0 = next(i for i, s in enumerate(spheres) if s is not None)
     first = spheres[i0]
-    augmented = []
-    if i0 in crops:  # the first frame's image: its spheres also learned as if smeared by motion
-        ox, oy = exp.crop_origin()
-        centres = np.column_stack([first.x - ox, first.y - oy])
-        augmented = smeared_features(crops[i0], centres, exp.particle_diameter_px)
     try:
-        classes = learn_classes(first.features, height(first.y, exp.window), exp.c0, N_LAYERS, augmented)
+        classes = learn_classes(first.features, height(first.y, exp.window), exp.c0, N_LAYERS)
+        if i0 in crops:  # the first frame's image: its spheres also learned as if smeared by motion
+            classes = _smeared_if_blurred(classes, first, crops[i0], good, exp)
     except ValueError as exc:
         raise ValueError(f"{exp.path.parent}: {exc}") from None
     for s in good:
         s.p_heavy = classes.p_heavy(s.features)
         s.heavy = s.p_heavy > 0.5
     return classes
+
+
+def _smeared_if_blurred(sharp: MaterialClasses, first: FrameSpheres, crop: np.ndarray,
+                        good: list[FrameSpheres], exp: Experiment) -> MaterialClasses:
+    """The classes learned from the first frame's spheres and their smeared copies too, if the run
+    shows motion blur for them to undo (classify.blur_test); else ``sharp``, with the test kept."""
+    ox, oy = exp.crop_origin()
+    augmented = smeared_features(crop, np.column_stack([first.x - ox, first.y - oy]), exp.particle_diameter_px)
+    smeared = learn_classes(first.features, height(first.y, exp.window), exp.c0, N_LAYERS, augmented)
+    features = np.concatenate([s.features for s in good])
+    test = blur_test(np.concatenate([height(s.y, exp.window) for s in good]),
+                     sharp.p_heavy(features) > 0.5, smeared.p_heavy(features) > 0.5)
+    return replace(smeared if test.smeared else sharp, blur=test)
 
 
 def _assess(result: Analysis) -> Quality:
@@ -511,6 +522,7 @@ def _assess(result: Analysis) -> Quality:
         n_bad_frames=len(result.bad_frames),
         wall_detections=float(np.mean([s.wall for s in good])),
         wall_glare=float(max(s.glare for s in good)),
+        blur=result.classes.blur if learned else None,
     )
 
 

@@ -171,7 +171,7 @@ def assess(*, n: np.ndarray, n_heavy: np.ndarray, c0: float, first_heights: np.n
            first_heavy: np.ndarray, scores: np.ndarray, settle: np.ndarray | None = None,
            p_heavy: np.ndarray | None,
            separation: Any | None, n_bad_frames: int, wall_detections: float,
-           wall_glare: float = 0.0) -> Quality:
+           wall_glare: float = 0.0, blur: Any | None = None) -> Quality:
     """Run every check on one analysed run.
 
     n, n_heavy: (n_t, n_layers) counts (rows of bad frames all zero);
@@ -185,7 +185,9 @@ def assess(*, n: np.ndarray, n_heavy: np.ndarray, c0: float, first_heights: np.n
     :class:`~granseg.measure.classify.Separation` (None with colour ranges);
     n_bad_frames: frames without a reading; wall_detections: mean detections
     per frame left out as hemispheres of the lid or the plate; wall_glare:
-    the most light [grey levels] the wall's reflections added (taken off).
+    the most light [grey levels] the wall's reflections added (taken off);
+    blur: the :class:`~granseg.measure.classify.BlurTest` that chose the
+    classes (None if none was made), recorded among the figures.
     """
     n_t, n_layers = n.shape
     good = n.sum(axis=1) > 0
@@ -251,6 +253,10 @@ def assess(*, n: np.ndarray, n_heavy: np.ndarray, c0: float, first_heights: np.n
     }
     if separation is not None:
         figures.update(labelled_heavy=separation.n_heavy, labelled_light=separation.n_light)
+    if blur is not None:
+        figures.update(classes_learned_smeared=bool(blur.smeared), blur_disagreements=int(blur.disagree),
+                       blur_disagreements_near_plate=int(blur.near_plate),
+                       evidence_against_blur=float(blur.evidence_against_blur))
     return Quality(tuple(checks), figures)
 
 
