@@ -6,16 +6,20 @@ window (a truth sphere with a detection within 0.4 D), c_raw RMSD and per-frame
 layer counts (mean over frames and layers of |n - n_true| / n_true) against
 the truth, the ``centres_settled`` figure and the quality verdict. With
 ``--polarities`` also what the detector's learning saw in the first frame: the
-polarity of each band of the stratified start, and, where they differ, the two
-bands' spheres per row with one polarity and with each material's own (the
-richer band's over the other's) and which set the criterion prefers, the one
-kept (:func:`granseg.measure.detect.learn_templates`). ``--choice one`` /
-``each`` keeps one polarity / each material's own wherever the bands'
-polarities differ, whatever the criterion says: the maps of the choice not
-taken.
+polarity of each band of the stratified start, and, where they differ, how
+well the spheres found by each set of templates pack (one polarity, each
+material's own, each material learned from the other's matches: the worse
+band's median nearest-neighbour distance [d]), whether a borrowed set was
+kept, and otherwise the two bands' spheres per row with one polarity and with
+each material's own (the richer band's over the other's) and which of those
+two the criterion prefers (:func:`granseg.measure.detect.learn_templates`).
+``--choice one`` / ``each`` keeps one polarity / each material's own wherever
+the bands' polarities differ, whatever the criteria say: the maps of the
+choice not taken; ``--choice no-borrowed`` never keeps a borrowed set (the
+detector before it could).
 
     PYTHONPATH=python python benches/bench_pbr_looks.py [--dir FOLDER] [--looks glass-pom ...] \\
-        [--polarities] [--choice auto|one|each] [--smeared auto|always|never] [--json FILE]
+        [--polarities] [--choice auto|one|each|no-borrowed] [--smeared auto|always|never] [--json FILE]
 
 The folders: ``tests/fixtures/pbr`` (the fixtures, judged on); the tuning
 family (``--seed-offset 100``, developed on); a held-out family
@@ -44,25 +48,33 @@ PBR = Path(__file__).resolve().parents[1] / "tests" / "fixtures" / "pbr"
 
 
 def _spy_on_learning(choice: str = "auto") -> list[dict]:
-    """Record what learn_templates decides: band polarities and both sets' band imbalance; with
-    ``choice`` "one" or "each" force that set to be kept where the bands' polarities differ."""
+    """Record what learn_templates decides: band polarities, each set's packing and the band
+    imbalance of one polarity / each its own; with ``choice`` "one" or "each" force that set to be
+    kept where the bands' polarities differ, with "no-borrowed" never keep a borrowed set."""
     seen: list[dict] = []
-    polarity, imbalance = detect._polarity, detect._band_imbalance
+    polarity, imbalance, packing = detect._polarity, detect._band_imbalance, detect._packing
+    if choice != "auto":
+        detect.PACKED_NN = np.inf  # a borrowed set never wins
 
     def band_polarity(image, candidates, d):
         sign, seeds = polarity(image, candidates, d)
         seen.append({"polarity": sign})
         return sign, seeds
 
-    def band_imbalance(image, templates, bands):
-        value = imbalance(image, templates, bands)
-        seen.append({"signs": templates.signs.tolist(), "ratio": float(np.exp(value))})
-        if choice == "auto":
-            return value
-        split = len(np.unique(templates.signs)) > 1
-        return float(split) if choice == "one" else float(not split)
+    def band_packing(spheres, d):
+        value = packing(spheres, d)
+        seen.append({"packing": value})
+        return value
 
-    detect._polarity, detect._band_imbalance = band_polarity, band_imbalance
+    def band_imbalance(spheres, bands):
+        value = imbalance(spheres, bands)
+        seen.append({"ratio": float(np.exp(value))})
+        if choice in ("auto", "no-borrowed"):
+            return value
+        is_split = sum("ratio" in e for e in seen) == 2  # one polarity's set comes first
+        return float(is_split) if choice == "one" else float(not is_split)
+
+    detect._polarity, detect._band_imbalance, detect._packing = band_polarity, band_imbalance, band_packing
     return seen
 
 
@@ -92,11 +104,16 @@ def measure(folder: Path, look: str, seen: list[dict]) -> dict:
            **_blur_figures(a)}
     # the whole frame's polarity comes first, then one per band (learn_templates' order)
     bands = [e["polarity"] for e in seen if "polarity" in e][1:3]
-    sets = [e for e in seen if "signs" in e]
+    ratios = [e["ratio"] for e in seen if "ratio" in e]
+    packing = [e["packing"] for e in seen if "packing" in e]
     out["band_polarities"] = bands
-    if len(sets) == 2:
-        out["spheres_per_row_ratio"] = {"one": sets[0]["ratio"], "each_its_own": sets[1]["ratio"]}
-        out["criterion_prefers"] = "each its own" if sets[1]["ratio"] < sets[0]["ratio"] else "one"
+    if packing:  # one polarity, each its own, then the borrowed sets (band 0's material, band 1's)
+        out["packing"] = dict(zip(["one", "each_its_own", "borrowed"], packing[:2] + [packing[2:]], strict=True))
+        best = int(np.argmax(packing))
+        out["borrowed_kept"] = bool(best >= 2 and packing[best] >= detect.PACKED_NN)
+    if len(ratios) == 2:
+        out["spheres_per_row_ratio"] = {"one": ratios[0], "each_its_own": ratios[1]}
+        out["criterion_prefers"] = "each its own" if ratios[1] < ratios[0] else "one"
     return out
 
 
@@ -105,8 +122,9 @@ def main() -> None:
     ap.add_argument("--dir", type=Path, default=PBR, help="folder of rendered looks (default: the fixtures)")
     ap.add_argument("--looks", nargs="+", default=None, help="looks to measure (default: every one)")
     ap.add_argument("--polarities", action="store_true", help="also report the polarities learned")
-    ap.add_argument("--choice", choices=("auto", "one", "each"), default="auto",
-                    help="force the set of templates kept where the bands' polarities differ (implies --polarities)")
+    ap.add_argument("--choice", choices=("auto", "one", "each", "no-borrowed"), default="auto",
+                    help="force the set of templates kept where the bands' polarities differ, or keep no "
+                         "borrowed set (implies --polarities)")
     ap.add_argument("--smeared", choices=("auto", "always", "never"), default="auto",
                     help="keep the classes learned with smeared copies: as the blur test says, always, never")
     ap.add_argument("--json", type=Path, default=None, help="also write the figures here")
@@ -126,6 +144,11 @@ def main() -> None:
                 f"({r['blur_disagreements_near_plate']}/{r['blur_disagreements']} near the plate)")
         if args.polarities:
             line += f"  | bands {r['band_polarities']}"
+            if "packing" in r:
+                pk = r["packing"]
+                line += (f", packing {pk['one']:.3f} / {pk['each_its_own']:.3f} / "
+                         f"{' '.join(f'{v:.3f}' for v in pk['borrowed'])}, borrowed "
+                         f"{'kept' if r['borrowed_kept'] else 'not kept'}")
             if "criterion_prefers" in r:
                 ratio = r["spheres_per_row_ratio"]
                 line += (f", spheres per row {ratio['one']:.3f} / {ratio['each_its_own']:.3f}, the criterion "

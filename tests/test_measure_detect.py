@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from granseg.measure.detect import detect_particles, learn_templates
+from granseg.measure.detect import _packing, detect_particles, learn_templates
 from granseg.measure.outline import fit_outlines
 from granseg.measure.templates import DiskScores, Templates, _disk, _masked_correlation
 
@@ -140,6 +140,21 @@ def test_each_material_keeps_its_own_polarity():
     assert min(recall["bands"]) >= 0.98, recall
     assert len(found) <= len(centres)  # nothing in the gaps
     assert np.median(dist) < 0.2
+
+
+def test_packing_is_the_worse_bands_nearest_neighbour_distance():
+    """Touching spheres pack at one diameter; scattered centres or ghosts between spheres pack closer,
+    and a band with too few spheres to tell packs at 0."""
+    d = 20.0
+    rng = np.random.default_rng(3)
+    rows = [(x + (j % 2) * d / 2, j * d * np.sqrt(3) / 2) for j in range(8) for x in np.arange(0, 10 * d, d)]
+    lattice = np.array(rows)
+    assert _packing([lattice, lattice], d) == pytest.approx(1.0, abs=1e-9)
+    scattered = lattice + rng.normal(0, 0.1 * d, lattice.shape)
+    assert _packing([lattice, scattered], d) < 0.95
+    ghosts = np.concatenate([lattice, lattice + [d / 2, d / (2 * np.sqrt(3))]])  # one in a gap per sphere
+    assert _packing([ghosts, lattice], d) < 0.7
+    assert _packing([lattice, lattice[:2]], d) == 0.0
 
 
 def test_outline_fit_reports_its_last_step():

@@ -45,7 +45,9 @@ class Templates:
     surroundings, -1 if darker (its patch is then of the inverted grey image,
     where its spheres are bright); rim_limits: (k,) per group, the lowest rim
     score of a sphere (see :func:`granseg.measure.detect._examine`), None to
-    accept every match.
+    accept every match; by_match: (k,) per group, True if its spheres are placed
+    where its template matches best rather than by a fit to their outline
+    (see :func:`granseg.measure.detect.learn_templates`), None for all False.
     """
 
     patches: tuple[np.ndarray, ...]
@@ -56,6 +58,7 @@ class Templates:
     d: float
     signs: np.ndarray
     rim_limits: np.ndarray | None = None
+    by_match: np.ndarray | None = None
 
     @property
     def half(self) -> int:
@@ -64,10 +67,12 @@ class Templates:
 
 def join_templates(parts: list[Templates]) -> Templates:
     """One set of templates holding the groups of each of ``parts`` (learned apart, rim limits dropped)."""
+    by_match = [np.zeros(len(t.patches), dtype=bool) if t.by_match is None else t.by_match for t in parts]
     return Templates(tuple(p for t in parts for p in t.patches), np.concatenate([t.offsets for t in parts]),
                      np.concatenate([t.radii for t in parts]), np.concatenate([t.colours for t in parts]),
                      tuple(m for t in parts for m in t.disks), parts[0].d,
-                     np.concatenate([t.signs for t in parts]))
+                     np.concatenate([t.signs for t in parts]),
+                     by_match=np.concatenate(by_match) if any(b.any() for b in by_match) else None)
 
 
 def build_templates(smooth: np.ndarray, image: np.ndarray, centres: np.ndarray, d: float,
