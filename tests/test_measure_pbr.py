@@ -20,10 +20,13 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
+from granseg.cli import main
 from granseg.errors import QualityWarning
+from granseg.maps import load_map
 from granseg.measure import analyze
 from granseg.measure.experiment import load_experiment
 from granseg.measure.pipeline import _FrameWorker
+from granseg.measure.quality import Quality
 from granseg.synth.pbr import load_fixture
 
 PBR = Path(__file__).parent / "fixtures" / "pbr"
@@ -80,6 +83,19 @@ def test_mirror_steel_is_learned_from_the_matte_spheres(look):
     dist, _ = cKDTree(np.column_stack([first.x, first.y])).query(steel[:, :2])
     d = exp.particle_diameter_px
     assert np.mean(dist < 0.1 * d) >= 0.9, np.mean(dist < 0.1 * d)
+
+
+def test_spheres_placed_by_their_template_are_reported(tmp_path, capsys):
+    """The map records the share of spheres placed by their template's best match, analyze says so,
+    and the map stays flagged: their outline fit does not settle."""
+    main(["analyze", str(PBR / "steel-pp"), "--out", str(tmp_path / "map.npz"), "--no-progress", "--smooth", "1"])
+    assert "placed where their template matches best" in capsys.readouterr().out
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", QualityWarning)  # the flag is what is asked for
+        quality = Quality.from_json(str(load_map(tmp_path / "map.npz").quality))
+    assert 0.3 < quality.figures["placed_by_template_match"] < 0.7, quality.figures  # steel: c0 = 0.5
+    assert "centres_settled" in [c.name for c in quality.failed]
+    assert _measured("ceramic-pp")[0].quality.figures["placed_by_template_match"] == 0.0
 
 
 def test_every_look_is_here():

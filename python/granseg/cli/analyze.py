@@ -70,6 +70,10 @@ def run(args: argparse.Namespace) -> int:
                 else "learned from sharp spheres only (motion blur ruled out)")
         print(f"classes {kept}: of the {figures['blur_disagreements']} spheres the two sets of classes "
               f"class differently, {figures['blur_disagreements_near_plate']} lie within 3 diameters of the plate")
+    if figures.get("placed_by_template_match"):  # a material learned from the other's matches
+        print(f"{100 * figures['placed_by_template_match']:.0f} % of the spheres placed where their template "
+              "matches best, not by their outline (mirror-like spheres, whose rim reflects their neighbours); "
+              "centres_settled still judges their outline fit")
     step = float(result.t[1] - result.t[0]) if len(result.t) > 1 else 0.0
     print(f"map written to {result.out} (smoothing: {result.smoothing_frames} frames = "
           f"{result.smoothing_frames * step:.4g} s of recording)")

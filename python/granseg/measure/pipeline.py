@@ -66,7 +66,10 @@ class FrameSpheres:
     class and its probability (p_heavy None with explicit colour ranges);
     wall: detections left out as hemispheres of the lid or plate (count);
     glare: the most light the wall's reflections added [grey levels], taken off;
-    settle: how far [px] the outline fit's last iteration moved each centre.
+    settle: how far [px] the outline fit's last iteration moved each centre;
+    by_match: whether each sphere was placed where its template matches best
+    rather than by its outline (a material learned from the other's matches,
+    :func:`granseg.measure.detect.learn_templates`; None: none was).
     """
 
     x: np.ndarray
@@ -79,6 +82,7 @@ class FrameSpheres:
     glare: float = 0.0
     heavy: np.ndarray | None = None
     p_heavy: np.ndarray | None = None
+    by_match: np.ndarray | None = None
 
 
 @dataclass
@@ -322,8 +326,10 @@ class _FrameWorker:
         if not keep.any():
             raise BadFrame(f"{name}: no spheres detected in the window")
         feats = sphere_features(crop, found[keep, :2], d)
+        by_match = self.templates.by_match
         return FrameSpheres(x[keep], y[keep], found[keep, 2], found[keep, 3], feats, found[keep, 5],
-                            wall=int((inside & ~clear).sum()), glare=glare), crop
+                            wall=int((inside & ~clear).sum()), glare=glare,
+                            by_match=None if by_match is None else by_match[found[keep, 4].astype(int)]), crop
 
 
 def _in_thread(source, worker, i: int, image: np.ndarray | None, keep_crop: bool):
@@ -523,6 +529,7 @@ def _assess(result: Analysis) -> Quality:
         wall_detections=float(np.mean([s.wall for s in good])),
         wall_glare=float(max(s.glare for s in good)),
         blur=result.classes.blur if learned else None,
+        by_match=np.concatenate([np.zeros(len(s.x), bool) if s.by_match is None else s.by_match for s in good]),
     )
 
 

@@ -171,7 +171,7 @@ def assess(*, n: np.ndarray, n_heavy: np.ndarray, c0: float, first_heights: np.n
            first_heavy: np.ndarray, scores: np.ndarray, settle: np.ndarray | None = None,
            p_heavy: np.ndarray | None,
            separation: Any | None, n_bad_frames: int, wall_detections: float,
-           wall_glare: float = 0.0, blur: Any | None = None) -> Quality:
+           wall_glare: float = 0.0, blur: Any | None = None, by_match: np.ndarray | None = None) -> Quality:
     """Run every check on one analysed run.
 
     n, n_heavy: (n_t, n_layers) counts (rows of bad frames all zero);
@@ -187,7 +187,11 @@ def assess(*, n: np.ndarray, n_heavy: np.ndarray, c0: float, first_heights: np.n
     per frame left out as hemispheres of the lid or the plate; wall_glare:
     the most light [grey levels] the wall's reflections added (taken off);
     blur: the :class:`~granseg.measure.classify.BlurTest` that chose the
-    classes (None if none was made), recorded among the figures.
+    classes (None if none was made), recorded among the figures; by_match:
+    whether each counted sphere was placed by its template's best match
+    rather than by its outline (its share is recorded among the figures;
+    ``centres_settled`` still judges every sphere's outline fit, which for
+    these spheres says their rim gives it nothing to settle on).
     """
     n_t, n_layers = n.shape
     good = n.sum(axis=1) > 0
@@ -253,6 +257,8 @@ def assess(*, n: np.ndarray, n_heavy: np.ndarray, c0: float, first_heights: np.n
     }
     if separation is not None:
         figures.update(labelled_heavy=separation.n_heavy, labelled_light=separation.n_light)
+    if by_match is not None and len(by_match):
+        figures["placed_by_template_match"] = float(np.mean(by_match))
     if blur is not None:
         figures.update(classes_learned_smeared=bool(blur.smeared), blur_disagreements=int(blur.disagree),
                        blur_disagreements_near_plate=int(blur.near_plate),
