@@ -372,7 +372,7 @@ def _examine(smooth: dict[int, np.ndarray], image: np.ndarray, templates: Templa
     """
     found = find_spheres(smooth, image, templates)
     found = np.column_stack([found, np.zeros(len(found))])
-    matched = found[:, :2].copy()
+    matched = None if templates.by_match is None else found[:, :2].copy()
     rim = np.empty(len(found))
     sign = templates.signs[found[:, 4].astype(int)]
     for s in np.unique(sign):  # each group's outline on the image where its spheres are bright
@@ -382,7 +382,7 @@ def _examine(smooth: dict[int, np.ndarray], image: np.ndarray, templates: Templa
         found[mine, 5] = outlines.step
         with np.errstate(divide="ignore"):
             rim[mine] = np.log(np.median(outlines.strength, axis=1))
-    if templates.by_match is not None:  # placed by their template (learn_templates); the rim still judges them
+    if matched is not None:  # placed by their template (learn_templates); the rim still judges them
         by_match = templates.by_match[found[:, 4].astype(int)]
         found[by_match, :2] = matched[by_match]
     return found, rim
