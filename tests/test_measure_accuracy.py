@@ -115,8 +115,8 @@ NOT_YET = {
     "apparatus-grey-matte-glossy-jpeg": "spheres on layer boundaries; dust over a still sphere read as the other class",
     # spheres hanging under the lid's bumps sit exactly on a layer boundary
     # (14.00 d) and MPEG-4 blurs the polished steel's outline by a few tenths
-    # of a pixel either way (seeds 9-12: c_raw RMSD 0.021-0.036, per-frame
-    # layer counts 3.2-6.7 %)
+    # of a pixel either way (seeds 9-12: c_raw RMSD 0.015-0.036, per-frame
+    # layer counts 3.2-6.5 %)
     "apparatus-S-POM-25-mp4v": "spheres on a layer boundary under the lid's bumps, MPEG-4",
 }
 

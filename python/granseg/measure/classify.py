@@ -6,7 +6,10 @@ height (1 - c0) H, light ones below. The first frame is therefore labelled
 training data for free: spheres more than :data:`MARGIN` diameters above the
 interface are heavy, those as far below are light. A classifier learned on
 them (scikit-learn's logistic regression on standardised features) gives
-every sphere of the run a probability of being heavy.
+every sphere of the run a probability of being heavy. A feature is never
+standardised by a spread finer than it is measured (:data:`RESOLUTION`), so
+that a feature both materials share cannot decide a class on a shift of a
+grey level.
 
 Each sphere is described by what sets materials apart when they share a hue
 (:data:`FEATURES`): the colour of its middle in CIE LAB, the spread of its
@@ -38,7 +41,8 @@ from sklearn.model_selection import StratifiedKFold
 from sklearn.pipeline import make_pipeline
 from sklearn.preprocessing import StandardScaler
 
-__all__ = ["BLUR_ZONE", "FEATURES", "MARGIN", "MARGINS", "SMEARS", "BlurTest", "MaterialClasses", "Separation",
+__all__ = ["BLUR_ZONE", "FEATURES", "MARGIN", "MARGINS", "RESOLUTION", "SMEARS", "BlurTest", "MaterialClasses",
+           "ResolvedScaler", "Separation",
            "blur_test", "classify_by_ranges", "interface_labels", "learn_classes", "smeared_features",
            "sphere_features"]
 
@@ -63,6 +67,18 @@ AMBIGUOUS = (0.2, 0.8)  # a sphere whose p_heavy falls in here is ambiguous
 _RINGS = ((0.0, 1), (0.22, 6), (0.42, 10), (0.58, 14), (0.72, 18), (0.86, 24))
 _MIDDLE = 17  # the first 1 + 6 + 10 samples lie in the middle
 _RIM = slice(1 + 6 + 10 + 14 + 18, None)
+
+# The finest difference each learned feature resolves: one level of the 8-bit
+# image for the grey-level and LAB features, one of the disk's samples for the
+# highlight's area. Standardising divides by the labelled spheres' spread, and
+# two grey materials' chroma spreads by 0.02 levels within a frame: a shift of
+# one level that lossy video gives later frames then weighed 50 standard
+# deviations, and matte POM rising among polished steel was called steel with
+# p_heavy = 1 (S-POM-25 in MPEG-4, issue 9). A spread is never taken as finer
+# than this resolution.
+_N_SAMPLES = sum(n for _, n in _RINGS)
+RESOLUTION = {"L": 1.0, "a": 1.0, "b": 1.0, "L_spread": 1.0, "highlight": 1.0,
+              "highlight_area": 1.0 / _N_SAMPLES, "rim": 1.0, "texture": 1.0, "specular": 1.0}
 
 
 def sphere_features(image: np.ndarray, centres: np.ndarray, particle_diameter_px: float) -> np.ndarray:
@@ -306,7 +322,8 @@ def learn_classes(features: np.ndarray, height: np.ndarray, c0: float, n_layers:
         # Logistic regression: outliers (a shadowed sphere, a highlight off
         # centre) pull a linear boundary less than they pull a Gaussian class,
         # and its probabilities are usable as they come.
-        model = make_pipeline(StandardScaler(), LogisticRegression(C=1.0, max_iter=1000))
+        model = make_pipeline(ResolvedScaler([RESOLUTION[FEATURES[j]] for j in LEARNED]),
+                              LogisticRegression(C=1.0, max_iter=1000))
         return model.fit(np.concatenate([v[rows] for v in views]), np.tile(y[rows], len(views)))
 
     # cross-validated by sphere: a sphere's smeared copies stay in its fold
@@ -318,6 +335,22 @@ def learn_classes(features: np.ndarray, height: np.ndarray, c0: float, n_layers:
     fitted = fit(np.arange(len(y)))
     score = fitted.decision_function(x)
     return MaterialClasses(fitted, Separation(float(accuracy), _height_share(score, y, h), n_heavy, n_light))
+
+
+class ResolvedScaler(StandardScaler):
+    """Standardises features, but never by a spread finer than each feature can be measured to
+    (``resolution``, one value per column): a feature constant to within a grey level among the
+    labelled spheres must not weigh a one-level change as many standard deviations."""
+
+    def __init__(self, resolution=None, *, copy=True, with_mean=True, with_std=True):
+        super().__init__(copy=copy, with_mean=with_mean, with_std=with_std)
+        self.resolution = resolution
+
+    def fit(self, X, y=None, sample_weight=None):
+        super().fit(X, y, sample_weight)
+        if self.resolution is not None and self.with_std:
+            self.scale_ = np.maximum(self.scale_, np.asarray(self.resolution, dtype=float))
+        return self
 
 
 def _height_share(score: np.ndarray, label: np.ndarray, height: np.ndarray) -> float:
