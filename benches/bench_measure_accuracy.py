@@ -11,7 +11,14 @@ error summed over the run, whether the map passed its quality checks, and
 per material the centre bias and 95th-percentile centre error [px]. The last
 line per scene pools the layer counts over all seeds. ``--set KEY=VALUE``
 overrides a render setting of every scene (e.g. the lamps: ``--set
-lighting=diffuse``; VALUE is read as JSON when it parses).
+lighting=diffuse``; VALUE is read as JSON when it parses). ``--variants``
+renders every scene once per named set of such changes (looks the scenes do
+not combine on their own: a grey pair in MPEG-4, under one lamp, dimmer) and
+reports each as ``scene+variant``; every run also reports the share of the
+spheres found that are in the wrong class.
+
+    PYTHONPATH=python python benches/bench_measure_accuracy.py --scenes S-POM-25 grey-steel-pom \
+        --seeds 21 --variants benches/variants/one_change.json
 
     PYTHONPATH=python python benches/bench_measure_accuracy.py --seeds 7 8 9 10 11 12 13 14 \
         --json benches/results/measure_accuracy.json
@@ -27,6 +34,7 @@ of the two's disagreements lay within 3 diameters of the plate.
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
 import sys
 import tempfile
@@ -46,13 +54,14 @@ from granseg.synth.scenes import render_scene, scene_names
 def score(r, a) -> dict:
     """Detection, map and centre figures of one analysed run against its truth."""
     d = r.experiment["particle_diameter_px"]
-    tp = fp = fn = 0
+    tp = fp = fn = wrong = 0
     errors = {"heavy": [], "light": []}
     for truth, s in zip(r.particles, a.spheres, strict=True):
         det = np.column_stack([s.x, s.y])
         dist, idx = cKDTree(truth[:, :2]).query(det)
         ok = dist <= 0.3 * d
         tp, fp = tp + int(ok.sum()), fp + int((~ok).sum())
+        wrong += int((s.heavy[ok] != (truth[idx[ok], 3] > 0)).sum())
         for name, heavy in (("heavy", 1), ("light", 0)):
             m = ok & (truth[idx, 3] == heavy)
             errors[name].append(det[m] - truth[idx[m], :2])
@@ -60,7 +69,7 @@ def score(r, a) -> dict:
         fn += int((back > 0.3 * d).sum())
     count = np.abs(a.n.sum(axis=0) - r.n.sum(axis=0)) / r.n.sum(axis=0)
     per_frame = np.abs(a.n - r.n)[r.n > 0] / r.n[r.n > 0]
-    out = {"recall": 1 - fn / int(r.n.sum()), "precision": tp / (tp + fp),
+    out = {"recall": 1 - fn / int(r.n.sum()), "precision": tp / (tp + fp), "wrong_class": wrong / max(tp, 1),
            "rmsd": float(np.sqrt(np.nanmean((a.c_raw - r.c_raw) ** 2))),
            "frame_layer_count_error": float(per_frame.mean()),
            "worst_layer_count_error": float(count.max()), "worst_layer": int(count.argmax()),
@@ -69,6 +78,9 @@ def score(r, a) -> dict:
            **_blur_figures(a)}
     for name, errs in errors.items():
         e = np.concatenate(errs)
+        if len(e) == 0:  # no sphere of this material found near a true one: nothing to place
+            out[f"{name}_bias_px"], out[f"{name}_p95_px"] = [float("nan")] * 2, float("nan")
+            continue
         out[f"{name}_bias_px"] = [round(float(v), 3) for v in e.mean(axis=0)]
         out[f"{name}_p95_px"] = float(np.percentile(np.hypot(*e.T), 95))
     return out
@@ -97,6 +109,18 @@ def _setting(item: str) -> tuple[str, object]:
         return key, value
 
 
+def _variants(text: str) -> dict[str, dict]:
+    """--variants: a JSON object of named render-setting changes, inline or in a .json file."""
+    raw = Path(text).read_text(encoding="utf-8") if text.endswith(".json") else text
+    try:
+        variants = json.loads(raw)
+    except json.JSONDecodeError as err:
+        raise argparse.ArgumentTypeError(f"not a JSON object: {err}") from None
+    if not isinstance(variants, dict) or not all(isinstance(v, dict) for v in variants.values()):
+        raise argparse.ArgumentTypeError("expected {name: {setting: value, ...}, ...}")
+    return variants
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--seeds", type=int, nargs="+", default=[7, 8, 9, 10])
@@ -107,24 +131,28 @@ def main() -> None:
                     help="override a render_frames setting of every scene")
     ap.add_argument("--smeared", choices=("auto", "always", "never"), default="auto",
                     help="keep the classes learned with smeared copies: as the blur test says, always, never")
+    ap.add_argument("--variants", type=_variants, default={"": {}}, metavar="JSON",
+                    help="render every scene once per variant: a JSON object {name: {setting: value}} "
+                         "(or a .json file holding one), applied on top of --set")
     ap.add_argument("--json", type=Path, default=None, help="also write the figures here")
     args = ap.parse_args()
     force_smeared(args.smeared)
     overrides = dict(_setting(item) for item in args.set)
     scenes = scene_names() if "all" in args.scenes else args.scenes
     results = {}
-    for name in scenes:
+    for scene, (variant, changes) in itertools.product(scenes, args.variants.items()):
+        name = f"{scene}+{variant}" if variant else scene
         runs, detected, true = {}, 0, 0
         for seed in args.seeds:
             with tempfile.TemporaryDirectory() as tmp:
-                r = render_scene(name, args.frames, seed=seed, out_dir=Path(tmp), **overrides)
+                r = render_scene(scene, args.frames, seed=seed, out_dir=Path(tmp), **{**overrides, **changes})
                 with warnings.catch_warnings():
                     warnings.simplefilter("ignore", QualityWarning)  # scored below
                     a = analyze(r.source, smooth=1, save=False, progress=False, workers=2)
             runs[seed] = s = score(r, a)
             detected, true = detected + a.n.sum(axis=0), true + r.n.sum(axis=0)
             print(f"{name:28s} seed {seed:3d}: recall {s['recall']:.3f} precision {s['precision']:.3f} "
-                  f"RMSD {s['rmsd']:.4f} frame-layer count {s['frame_layer_count_error']:.3f} "
+                  f"wrong class {s['wrong_class']:.4f} RMSD {s['rmsd']:.4f} frame-layer count {s['frame_layer_count_error']:.3f} "
                   f"worst layer {s['worst_layer_count_error']:.3f} quality "
                   f"{'ok' if s['quality_ok'] else 'FAILED ' + ','.join(s['failed_checks'])} "
                   f"(centres_settled {s['centres_settled']:.2f}; smeared classes "

@@ -142,6 +142,19 @@ def test_each_material_keeps_its_own_polarity():
     assert np.median(dist) < 0.2
 
 
+def test_a_band_thinner_than_a_diameter_learns_no_polarity():
+    """The same two-material scene with the lower band cut to a strip less than a diameter tall (a
+    run with c0 near 1): what such a strip shows is no material's polarity, so one is learned for
+    the frame, as without bands."""
+    d = 26.0
+    image, _, middle = _two_material_scene(d)
+    thin = ((0.0, middle - 0.75 * d), (middle + 0.75 * d, middle + 1.6 * d))
+    templates = learn_templates(image, d, bands=thin)
+    alone = learn_templates(image, d)
+    assert templates.signs.tolist() == alone.signs.tolist() and len(set(templates.signs.tolist())) == 1
+    assert all(np.array_equal(a, b) for a, b in zip(templates.patches, alone.patches, strict=True))
+
+
 def test_packing_is_the_worse_bands_nearest_neighbour_distance():
     """Touching spheres pack at one diameter; scattered centres or ghosts between spheres pack closer,
     and a band with too few spheres to tell packs at 0."""

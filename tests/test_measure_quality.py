@@ -231,3 +231,22 @@ def test_polished_steel_over_pom_in_mpeg4_keeps_its_classes(tmp_path):
         wrong += int((s.heavy[ok] != (truth[idx[ok], 3] > 0)).sum())
     assert wrong <= 0.002 * found, f"{wrong} of {found} spheres in the wrong class"
     assert np.sqrt(np.nanmean((a.c_raw - r.c_raw) ** 2)) <= 0.03
+
+
+# --------------------------------------------------------------------------- a camera that adjusts itself
+
+
+@pytest.mark.parametrize("drift, trusted", [(-0.25, True), (-0.5, False)])
+def test_automatic_exposure_drift_is_held_or_flagged(tmp_path, drift, trusted):
+    """A camera's automatic exposure darkening the frames over the run: by a quarter the classes
+    learned on the first frame still hold; by half the matte POM moves towards the steel's
+    brightness, and the map is flagged, not silently wrong."""
+    r = render_scene("S-POM-25", 6, seed=9, out_dir=tmp_path, exposure_drift=drift)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", QualityWarning)
+        a = analyze(r.source, smooth=1, save=False, progress=False, workers=2)
+    rmsd = float(np.sqrt(np.nanmean((a.c_raw - r.c_raw) ** 2)))
+    if trusted:
+        assert a.quality.ok and rmsd <= 0.03, (rmsd, a.quality.report())
+    else:
+        assert not a.quality.ok and rmsd > 0.03, (rmsd, a.quality.report())

@@ -78,6 +78,19 @@ def test_jpeg_and_noise_change_pixels_but_not_truth():
     assert np.abs(clean.images[0].astype(int) - dirty.images[0].astype(int)).mean() > 2
 
 
+def test_exposure_drift_ramps_the_gain_over_the_run():
+    steady = render_frames(_map(3), particle_diameter_px=20, image_size=(400, 480), noise=0, seed=5)
+    darker = render_frames(_map(3), particle_diameter_px=20, image_size=(400, 480), noise=0, seed=5,
+                           exposure_drift=-0.5)
+    ratio = [float(b.astype(float).mean() / a.astype(float).mean()) for a, b in
+             zip(steady.images, darker.images, strict=True)]
+    assert ratio[0] == pytest.approx(1.0, abs=0.01)
+    assert ratio[1] == pytest.approx(0.75, abs=0.03) and ratio[2] == pytest.approx(0.5, abs=0.03)
+    assert all(np.array_equal(a, b) for a, b in zip(steady.particles, darker.particles, strict=True))
+    with pytest.raises(ValueError, match="exposure_drift"):
+        render_frames(_map(1), exposure_drift=-1.0)
+
+
 def test_bad_arguments_are_named():
     with pytest.raises(ValueError, match="unknown material"):
         render_frames(_map(1), heavy="wood")

@@ -139,8 +139,9 @@ def learn_templates(image: np.ndarray, particle_diameter_px: float,
     """Learn the spheres' appearances from one image (None if it shows fewer than 3 spheres).
 
     ``bands``: two row ranges (top, bottom) [px] of ``image`` each known to
-    hold spheres of one material only (the first frame of a run, stratified
-    about its interface). Each band's polarity is then learned apart as well.
+    hold the centres of spheres of one material only (the first frame of a
+    run, stratified about its interface). If both are at least a diameter
+    tall, each band's polarity is then learned apart as well.
     Where they differ, further sets are learned: each material's of its own
     polarity, and for each band one whose material is learned from the
     spheres the other band's template finds there (:func:`_borrowed`). A
@@ -174,7 +175,10 @@ def learn_templates(image: np.ndarray, particle_diameter_px: float,
     candidates = _candidates(to_gray(image), d)
     sign, seeds = _polarity(image, candidates, d)
     one = _with_rim_limits(image, _templates_from_seeds(image, seeds, d, sign), seeds) if len(seeds) >= 3 else None
-    if bands is None:
+    if bands is None or min(bottom - top for top, bottom in bands) < d:
+        # a band less than a diameter tall holds at most a part of a row: what it
+        # shows (3 gaps between smeared spheres, C-PP-90 with c0 = 0.93, where the
+        # light band was 7 px of the plate's edge) is no material's polarity
         return one
     per_band = [_polarity(image, _in_rows(candidates, rows), d) for rows in bands]
     if min(len(seeds) for _, seeds in per_band) < 3 or per_band[0][0] == per_band[1][0]:

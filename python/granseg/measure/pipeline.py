@@ -303,12 +303,16 @@ class _FrameWorker:
         self.templates = learn_templates(crop, self.exp.particle_diameter_px, bands=self._material_bands())
 
     def _material_bands(self) -> tuple[tuple[float, float], tuple[float, float]]:
-        """Rows of the crop (top, bottom) holding only heavy spheres and only light ones in the
-        stratified first frame: above and below the interface at (1 - c0) H, MARGIN layers clear of it."""
+        """Rows of the crop (top, bottom) holding only heavy spheres' centres and only light ones' in
+        the stratified first frame: above and below the interface at (1 - c0) H, MARGIN layers clear
+        of it, and half a diameter clear of the lid and the plate, where no centre can lie."""
         x0, y0, x1, y1 = self.exp.window
         layer = (y1 - y0) / N_LAYERS
-        interface = y1 - (1.0 - self.exp.c0) * (y1 - y0) - self.crop[1]
-        return ((y0 - self.crop[1], interface - MARGIN * layer), (interface + MARGIN * layer, y1 - self.crop[1]))
+        half = 0.5 * self.exp.particle_diameter_px
+        interface = y1 - (1.0 - self.exp.c0) * (y1 - y0)
+        top = (y0 + half, interface - MARGIN * layer)
+        bottom = (interface + MARGIN * layer, y1 - half)
+        return tuple((a - self.crop[1], b - self.crop[1]) for a, b in (top, bottom))
 
     def __call__(self, name: str, image: np.ndarray) -> tuple[FrameSpheres, np.ndarray]:
         if (image.shape[1], image.shape[0]) != self.size:

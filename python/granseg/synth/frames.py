@@ -154,6 +154,7 @@ def render_frames(
     delta_over_H: float = 0.18,
     lighting: str = "two-sided",
     exposure: float = 1.0,
+    exposure_drift: float = 0.0,
     vignetting: float = 0.25,
     blur: float = 0.7,
     noise: float = 2.0,
@@ -201,6 +202,10 @@ def render_frames(
         Default 0.6 diameter.
     lighting : "two-sided" (two side LED lamps), "left", "front" (ring light) or "diffuse".
     exposure : brightness gain (1 = nominal).
+    exposure_drift : a camera's automatic exposure changing over the run:
+        the gain grows linearly from ``exposure`` at the first frame to
+        ``exposure * (1 + exposure_drift)`` at the last (-0.25: a quarter
+        darker by the end). 0: steady.
     vignetting : relative darkening at the image corners.
     blur : Gaussian blur sigma of the optics [px].
     noise : sensor noise standard deviation [grey levels of 255].
@@ -255,6 +260,8 @@ def render_frames(
     cmap = _check_map(c)
     if not (np.isfinite(lid_slip) and 0.0 <= lid_slip < 1.0):
         raise ValueError(f"lid_slip must be in [0, 1) (v1 / v0), got {lid_slip!r}")
+    if not (np.isfinite(exposure_drift) and exposure_drift > -1.0):
+        raise ValueError(f"exposure_drift must be > -1 (the last frame's gain stays positive), got {exposure_drift!r}")
     heavy_look, light_look = _look(heavy, colours), _look(light, colours)
     apparatus = _apparatus(bumps, bump_spacing, smear_diameters, wall_reflections, dust, video, video_bitrate)
     d = float(particle_diameter_px)
@@ -279,7 +286,8 @@ def render_frames(
     for i in range(cmap.shape[0]):
         x = bed.positions(i, shift, delta_over_H, lid_slip, exact_speeds)
         bed.assign_types(x, cmap[i], rng)
-        ideal = scene.draw(x, bed, exposure, vignetting)
+        gain = exposure * (1.0 + exposure_drift * i / max(cmap.shape[0] - 1, 1))
+        ideal = scene.draw(x, bed, gain, vignetting)
         images.append(_camera_effects(ideal, sensor_map, blur, noise, jpeg_quality, rng))
         truth.append(bed.truth(x))
         bump_truth.append(bed.bump_truth())
