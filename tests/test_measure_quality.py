@@ -236,17 +236,24 @@ def test_polished_steel_over_pom_in_mpeg4_keeps_its_classes(tmp_path):
 # --------------------------------------------------------------------------- a camera that adjusts itself
 
 
-@pytest.mark.parametrize("drift, trusted", [(-0.25, True), (-0.5, False)])
-def test_automatic_exposure_drift_is_held_or_flagged(tmp_path, drift, trusted):
-    """A camera's automatic exposure darkening the frames over the run: by a quarter the classes
-    learned on the first frame still hold; by half the matte POM moves towards the steel's
-    brightness, and the map is flagged, not silently wrong."""
-    r = render_scene("S-POM-25", 6, seed=9, out_dir=tmp_path, exposure_drift=drift)
+@pytest.mark.parametrize("scene, seed, drift", [
+    ("S-POM-25", 9, -0.25),
+    ("S-POM-25", 9, -0.5),
+    pytest.param("grey-matte-glossy", 23, 0.6, marks=pytest.mark.xfail(
+        strict=True, reason="brightened by 60 %: 2.5 % of the spheres in the wrong class and no check fails "
+                            "(a brightness check was tried and dropped: BENCHMARKS.md)")),
+])
+def test_automatic_exposure_drift_is_held_or_flagged(tmp_path, scene, seed, drift):
+    """A camera's automatic exposure changing the frames' brightness over the run: by a quarter the
+    classes learned on the first frame still hold; darkened by half, matte POM looks like the
+    steel and the map is flagged. Either way a wrong map must not pass as right."""
+    r = render_scene(scene, 6, seed=seed, out_dir=tmp_path, exposure_drift=drift)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", QualityWarning)
         a = analyze(r.source, smooth=1, save=False, progress=False, workers=2)
     rmsd = float(np.sqrt(np.nanmean((a.c_raw - r.c_raw) ** 2)))
-    if trusted:
+    if abs(drift) <= 0.25:
         assert a.quality.ok and rmsd <= 0.03, (rmsd, a.quality.report())
-    else:
-        assert not a.quality.ok and rmsd > 0.03, (rmsd, a.quality.report())
+    assert rmsd <= 0.03 or not a.quality.ok, (rmsd, a.quality.report())
+    if drift == -0.5:
+        assert not a.quality.ok
