@@ -111,7 +111,10 @@ def _setting(item: str) -> tuple[str, object]:
 
 def _variants(text: str) -> dict[str, dict]:
     """--variants: a JSON object of named render-setting changes, inline or in a .json file."""
-    raw = Path(text).read_text(encoding="utf-8") if text.endswith(".json") else text
+    try:
+        raw = Path(text).read_text(encoding="utf-8") if text.endswith(".json") else text
+    except OSError as err:
+        raise argparse.ArgumentTypeError(f"cannot read {text}: {err.strerror}") from None
     try:
         variants = json.loads(raw)
     except json.JSONDecodeError as err:
