@@ -239,9 +239,11 @@ def test_polished_steel_over_pom_in_mpeg4_keeps_its_classes(tmp_path):
 @pytest.mark.parametrize("scene, seed, drift", [
     ("S-POM-25", 9, -0.25),
     ("S-POM-25", 9, -0.5),
-    pytest.param("grey-matte-glossy", 23, 0.6, marks=pytest.mark.xfail(
-        strict=True, reason="brightened by 60 %: 2.5 % of the spheres in the wrong class and no check fails "
-                            "(a brightness check was tried and dropped: BENCHMARKS.md)")),
+    # brightened by 60 %: c_raw RMSD 0.08, 2.5 % of the spheres in the wrong class. It passed every
+    # check until the outline bias was learned (detect._ray_bias); now ambiguous_spheres flags it,
+    # at 0.051 against its limit of 0.05: a narrow catch (a brightness check was tried and dropped,
+    # BENCHMARKS.md)
+    ("grey-matte-glossy", 23, 0.6),
 ])
 def test_automatic_exposure_drift_is_held_or_flagged(tmp_path, scene, seed, drift):
     """A camera's automatic exposure changing the frames' brightness over the run: by a quarter the

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-__all__ = ["Outlines", "fit_outlines", "outline_centres", "refine_circles", "ring_centre"]
+__all__ = ["N_FIT_RAYS", "Outlines", "fit_outlines", "outline_bias", "outline_centres", "refine_circles", "ring_centre"]
 
 N_RAYS = 40
 # The rim is searched within RIM_SEARCH_PX + RIM_SEARCH_SIZE x radius of the
@@ -26,6 +26,7 @@ N_RAYS = 40
 # 1.1 px, against 1.2 and 0.24 px now; unchanged at 20-30 px (issue 3).
 RIM_SEARCH_PX = 1.5
 RIM_SEARCH_SIZE = 0.06
+N_FIT_RAYS = 48  # rays of :func:`fit_outlines`
 
 
 def refine_circles(smooth: np.ndarray, centres: np.ndarray, particle_diameter_px: float,
@@ -106,7 +107,9 @@ class Outlines:
     edge (outward drop per px less its local mean; 0 where none);
     inlier: (m, k) the rays whose edge agrees with the fitted circle;
     step: (m,) how far [px] the last iteration moved each centre (small once
-    the fit has settled).
+    the fit has settled); residual: (m, k) how far [px] each ray's edge lies
+    outside the fitted circle in the last iteration (NaN where the ray found
+    none), after ``ray_bias`` is taken off.
     """
 
     centres: np.ndarray
@@ -114,16 +117,17 @@ class Outlines:
     strength: np.ndarray
     inlier: np.ndarray
     step: np.ndarray
+    residual: np.ndarray
 
 
 def outline_centres(smooth: np.ndarray, centres: np.ndarray, radii: np.ndarray, d: float,
-                    iterations: int = 3, n_rays: int = 48) -> np.ndarray:
+                    iterations: int = 3, n_rays: int = N_FIT_RAYS) -> np.ndarray:
     """Centres (m, 2) of circles about the known radii fitted to the spheres' outlines (:func:`fit_outlines`)."""
     return fit_outlines(smooth, centres, radii, d, iterations, n_rays).centres
 
 
 def fit_outlines(smooth: np.ndarray, centres: np.ndarray, radii: np.ndarray, d: float,
-                 iterations: int = 3, n_rays: int = 48) -> Outlines:
+                 iterations: int = 3, n_rays: int = N_FIT_RAYS, ray_bias: np.ndarray | None = None) -> Outlines:
     """Circles about the known radii fitted to the spheres' outlines.
 
     Template peaks and brightness are shifted by shading and highlights, the
@@ -140,13 +144,21 @@ def fit_outlines(smooth: np.ndarray, centres: np.ndarray, radii: np.ndarray, d: 
     larger than the template is pulled 0.5 px towards the side where
     neighbours hide its outline).
 
+    ``ray_bias`` ((k,) or (m, k), ray i at angle 2 pi i / k, y down) is
+    where the edge finder puts each ray's edge outside the true outline [px],
+    taken off before the fit: a sphere's shaded side has no sharp rim, and
+    the edge found there lies inside it (:func:`outline_bias`).
+
     ``smooth`` must show the spheres brighter than their surroundings (the
     detector passes the inverted image when they are darker).
     """
     c = np.asarray(centres, dtype=float).copy()
     radius = np.asarray(radii, dtype=float)
+    if ray_bias is not None and np.shape(ray_bias)[-1] != n_rays:
+        raise ValueError(f"ray_bias: {np.shape(ray_bias)[-1]} rays given for a fit of {n_rays}")
     if len(c) == 0:
-        return Outlines(c.reshape(0, 2), radius.copy(), np.zeros((0, n_rays)), np.zeros((0, n_rays), bool), np.zeros(0))
+        empty = np.zeros((0, n_rays))
+        return Outlines(c.reshape(0, 2), radius.copy(), empty, empty.astype(bool), np.zeros(0), empty)
     fitted = radius.copy()
     theta = np.linspace(0, 2 * np.pi, n_rays, endpoint=False)
     ray = np.column_stack([np.cos(theta), np.sin(theta)])
@@ -176,6 +188,8 @@ def fit_outlines(smooth: np.ndarray, centres: np.ndarray, radii: np.ndarray, d: 
         denom = np.where(ok, lo - 2 * peak + hi, -1.0)
         frac = np.where(ok & (np.abs(denom) > 1e-6), 0.5 * (lo - hi) / np.where(denom == 0, -1.0, denom), 0.0)
         edge = mid[best] + 0.5 * np.clip(np.nan_to_num(frac), -0.5, 0.5) - radius[:, None]
+        if ray_bias is not None:
+            edge = edge - ray_bias
         # rays weighted by edge strength: where a sphere touches a neighbour
         # its outline is faint and least trustworthy
         wt = np.where(ok, peak, 0.0)
@@ -192,7 +206,38 @@ def fit_outlines(smooth: np.ndarray, centres: np.ndarray, radii: np.ndarray, d: 
         move = np.where(good[:, None], np.clip(sol[:, :2], -3.0, 3.0), 0.0)
         c += move
         fitted = np.where(good, radius + sol[:, 2], radius)
-    return Outlines(c, fitted, np.where(ok, peak, 0.0), w > 0, np.hypot(*move.T))
+    residual = np.where(ok, edge - np.einsum("mki,mi->mk", a, sol), np.nan)
+    return Outlines(c, fitted, np.where(ok, peak, 0.0), w > 0, np.hypot(*move.T), residual)
+
+
+def outline_bias(residual: np.ndarray) -> np.ndarray:
+    """The part of a kind of sphere's outline residuals (m, k) (:class:`Outlines`) that no circle
+    explains: (k,) [px] per ray, 0 where fewer than half the spheres' rays found an edge.
+
+    A systematic residual profile p(theta), the median over the spheres,
+    is part circle (a shift c_x cos + c_y sin, which the fit has already
+    taken as a move of the centre, and a change of radius) and part an
+    edge finder that is wrong on some side: the shaded side of a sphere lit
+    from above, where no sharp rim separates it from the dark gaps, puts
+    the edge up to 1.8 px inside (dark POM of the 2-D renderer's S-POM-25,
+    against 0.5 px on its other sides), which moves the centre 0.2-0.4 px
+    up. Which part is which is not determined by p alone; assuming the edge
+    finder right on most of the outline, the circle part is the
+    least-absolute-deviation fit of c_x cos + c_y sin + c_r (its residual
+    is sparse, as the bias is) and the rest is the bias.
+    """
+    from sklearn.linear_model import QuantileRegressor
+
+    n_rays = residual.shape[1]
+    enough = np.isfinite(residual).sum(axis=0) >= max(1, residual.shape[0] // 2)
+    if enough.sum() < n_rays // 2:
+        return np.zeros(n_rays)
+    with np.errstate(all="ignore"):
+        profile = np.nanmedian(np.where(enough, residual, 0.0), axis=0)
+    theta = 2 * np.pi * np.arange(n_rays) / n_rays
+    basis = np.column_stack([np.cos(theta), np.sin(theta)])
+    circle = QuantileRegressor(quantile=0.5, alpha=0.0, solver="highs").fit(basis[enough], profile[enough])
+    return np.where(enough, profile - circle.predict(basis), 0.0)
 
 
 def _sample(image: np.ndarray, px: np.ndarray, py: np.ndarray) -> np.ndarray:

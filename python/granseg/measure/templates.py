@@ -47,7 +47,10 @@ class Templates:
     score of a sphere (see :func:`granseg.measure.detect._examine`), None to
     accept every match; by_match: (k,) per group, True if its spheres are placed
     where its template matches best rather than by a fit to their outline
-    (see :func:`granseg.measure.detect.learn_templates`), None for all False.
+    (see :func:`granseg.measure.detect.learn_templates`), None for all False;
+    ray_bias: (k, N_FIT_RAYS) per group, where the outline fit's edge finder
+    puts each ray's edge outside the true outline [px]
+    (:func:`granseg.measure.outline.outline_bias`), None for none.
     """
 
     patches: tuple[np.ndarray, ...]
@@ -59,6 +62,7 @@ class Templates:
     signs: np.ndarray
     rim_limits: np.ndarray | None = None
     by_match: np.ndarray | None = None
+    ray_bias: np.ndarray | None = None
 
     @property
     def half(self) -> int:
@@ -66,7 +70,7 @@ class Templates:
 
 
 def join_templates(parts: list[Templates]) -> Templates:
-    """One set of templates holding the groups of each of ``parts`` (learned apart, rim limits dropped)."""
+    """One set of templates holding the groups of each of ``parts`` (learned apart, rim limits and ray bias dropped)."""
     by_match = [np.zeros(len(t.patches), dtype=bool) if t.by_match is None else t.by_match for t in parts]
     return Templates(tuple(p for t in parts for p in t.patches), np.concatenate([t.offsets for t in parts]),
                      np.concatenate([t.radii for t in parts]), np.concatenate([t.colours for t in parts]),
