@@ -220,8 +220,8 @@ def outline_bias(residual: np.ndarray) -> np.ndarray:
     edge finder that is wrong on some side: the shaded side of a sphere lit
     from above, where no sharp rim separates it from the dark gaps, puts
     the edge up to 1.8 px inside (dark POM of the 2-D renderer's S-POM-25,
-    against 0.5 px on its other sides), which moves the centre 0.2-0.4 px
-    up. Which part is which is not determined by p alone; assuming the edge
+    against 0.4-0.85 px on its other sides), which moves the centre 0.2-0.4
+    px up. Which part is which is not determined by p alone; assuming the edge
     finder right on most of the outline, the circle part is the
     least-absolute-deviation fit of c_x cos + c_y sin + c_r (its residual
     is sparse, as the bias is) and the rest is the bias.
