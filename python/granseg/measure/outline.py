@@ -14,6 +14,7 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
+from sklearn.linear_model import QuantileRegressor
 
 __all__ = ["N_FIT_RAYS", "Outlines", "fit_outlines", "outline_bias", "outline_centres", "refine_circles", "ring_centre"]
 
@@ -226,14 +227,11 @@ def outline_bias(residual: np.ndarray) -> np.ndarray:
     least-absolute-deviation fit of c_x cos + c_y sin + c_r (its residual
     is sparse, as the bias is) and the rest is the bias.
     """
-    from sklearn.linear_model import QuantileRegressor
-
     n_rays = residual.shape[1]
     enough = np.isfinite(residual).sum(axis=0) >= max(1, residual.shape[0] // 2)
     if enough.sum() < n_rays // 2:
         return np.zeros(n_rays)
-    with np.errstate(all="ignore"):
-        profile = np.nanmedian(np.where(enough, residual, 0.0), axis=0)
+    profile = np.nanmedian(np.where(enough, residual, 0.0), axis=0)  # every column has an edge
     theta = 2 * np.pi * np.arange(n_rays) / n_rays
     basis = np.column_stack([np.cos(theta), np.sin(theta)])
     circle = QuantileRegressor(quantile=0.5, alpha=0.0, solver="highs").fit(basis[enough], profile[enough])
