@@ -65,6 +65,10 @@ def run(args: argparse.Namespace) -> int:
     if glare >= 10:
         print(f"lamp reflections on the wall taken off: up to {glare:.0f} grey levels")
     figures = result.quality.figures
+    if figures.get("exposure_matched"):
+        low, high = figures["exposure_gain_range"]
+        print(f"camera exposure changed over the run: {low:.2f} to {high:.2f} times the first frame's; every "
+              "frame was brought back to the first's (measure.exposure)")
     if figures.get("blur_disagreements"):  # the classes learned with and without smeared copies differ
         kept = ("also learned from smeared copies (motion blur not ruled out)" if figures["classes_learned_smeared"]
                 else "learned from sharp spheres only (motion blur ruled out)")

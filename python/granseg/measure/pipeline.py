@@ -30,6 +30,7 @@ from granseg.measure.classify import (
 )
 from granseg.measure.detect import Templates, detect_particles, learn_templates
 from granseg.measure.experiment import Experiment, load_experiment
+from granseg.measure.exposure import Exposure, bed_level, survey, survey_indices
 from granseg.measure.layers import (
     N_LAYERS,
     clear_of_walls,
@@ -66,6 +67,9 @@ class FrameSpheres:
     class and its probability (p_heavy None with explicit colour ranges);
     wall: detections left out as hemispheres of the lid or plate (count);
     glare: the most light the wall's reflections added [grey levels], taken off;
+    gain: the frame's exposure relative to the first frame's (measure.exposure);
+    gain_taken_off: whether it was divided out (the run's gain strays by more
+    than DRIFT_LIMIT);
     settle: how far [px] the outline fit's last iteration moved each centre;
     by_match: whether each sphere was placed where its template matches best
     rather than by its outline (a material learned from the other's matches,
@@ -80,6 +84,8 @@ class FrameSpheres:
     settle: np.ndarray
     wall: int = 0
     glare: float = 0.0
+    gain: float = 1.0
+    gain_taken_off: bool = False
     heavy: np.ndarray | None = None
     p_heavy: np.ndarray | None = None
     by_match: np.ndarray | None = None
@@ -292,14 +298,25 @@ class _FrameWorker:
         self.exp, self.size = exp, image_size
         self.undistort = Undistorter(exp.camera_matrix, exp.dist_coeffs, image_size, self.crop)
         self.templates: Templates | None = None
+        self.exposure = Exposure(0.0)  # none matched until surveyed
         if not self.undistort.inside_image(exp.window):
             raise ValueError(f"{exp.path}: field 'window': {list(exp.window)} is outside the image "
                              f"({image_size[0]} x {image_size[1]} px) once undistorted with its "
                              "'camera_matrix' and 'dist_coeffs'")
 
+    def survey(self, source: FrameDirectory | VideoFrames, first_index: int, first: np.ndarray) -> None:
+        """Survey the run's exposure (measure.exposure): the first frame's bed level and the largest
+        gain of a few frames spread over the run, which every frame is then matched to."""
+        reference = bed_level(self.undistort(_bgr(first)), self.bed_rows)
+        levels = (bed_level(self.undistort(_bgr(img)), self.bed_rows)
+                  for _, img in source.some(survey_indices(len(source), first_index))
+                  if img.shape[:2] == first.shape[:2])  # a frame of another size is reported later
+        self.exposure = survey(levels, reference)
+
     def learn(self, image: np.ndarray) -> None:
         """Learn the spheres' appearances from one frame (kept None if it shows too few spheres)."""
-        crop, _ = remove_wall_glare(self.undistort(_bgr(image)), self.exp.particle_diameter_px, self.bed_rows)
+        undistorted, _ = self.exposure.match(self.undistort(_bgr(image)), self.bed_rows)
+        crop, _ = remove_wall_glare(undistorted, self.exp.particle_diameter_px, self.bed_rows)
         self.templates = learn_templates(crop, self.exp.particle_diameter_px, bands=self._material_bands())
 
     def _material_bands(self) -> tuple[tuple[float, float], tuple[float, float]]:
@@ -319,7 +336,8 @@ class _FrameWorker:
             raise BadFrame(f"{name}: size {image.shape[1]} x {image.shape[0]} differs from the first frame's "
                            f"{self.size[0]} x {self.size[1]}")
         d = self.exp.particle_diameter_px
-        crop, glare = remove_wall_glare(self.undistort(image), d, self.bed_rows)
+        undistorted, gain = self.exposure.match(self.undistort(image), self.bed_rows)
+        crop, glare = remove_wall_glare(undistorted, d, self.bed_rows)
         found = detect_particles(crop, d, templates=self.templates, details=True)
         x, y = found[:, 0] + self.crop[0], found[:, 1] + self.crop[1]
         inside = in_window(x, y, self.exp.window)
@@ -332,7 +350,8 @@ class _FrameWorker:
         feats = sphere_features(crop, found[keep, :2], d)
         by_match = self.templates.by_match
         return FrameSpheres(x[keep], y[keep], found[keep, 2], found[keep, 3], feats, found[keep, 5],
-                            wall=int((inside & ~clear).sum()), glare=glare,
+                            wall=int((inside & ~clear).sum()), glare=glare, gain=gain,
+                            gain_taken_off=self.exposure.drifting,
                             by_match=None if by_match is None else by_match[found[keep, 4].astype(int)]), crop
 
 
@@ -352,6 +371,7 @@ def _detect_all(source, exp, workers, progress, keep):
     except ValueError:
         _check_same_size(source, first_index, first)  # a stray first frame, not the window, is to blame
         raise
+    worker.survey(source, first_index, first)
     worker.learn(first)
     results: dict[int, Any] = {}
     crops: dict[int, np.ndarray] = {}
@@ -532,6 +552,8 @@ def _assess(result: Analysis) -> Quality:
         n_bad_frames=len(result.bad_frames),
         wall_detections=float(np.mean([s.wall for s in good])),
         wall_glare=float(max(s.glare for s in good)),
+        exposure_gain=(float(min(s.gain for s in good)), float(max(s.gain for s in good))),
+        exposure_matched=any(s.gain_taken_off for s in good),
         blur=result.classes.blur if learned else None,
         by_match=np.concatenate([np.zeros(len(s.x), bool) if s.by_match is None else s.by_match for s in good]),
     )

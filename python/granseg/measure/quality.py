@@ -171,7 +171,8 @@ def assess(*, n: np.ndarray, n_heavy: np.ndarray, c0: float, first_heights: np.n
            first_heavy: np.ndarray, scores: np.ndarray, settle: np.ndarray | None = None,
            p_heavy: np.ndarray | None,
            separation: Any | None, n_bad_frames: int, wall_detections: float,
-           wall_glare: float = 0.0, blur: Any | None = None, by_match: np.ndarray | None = None) -> Quality:
+           wall_glare: float = 0.0, exposure_gain: tuple[float, float] = (1.0, 1.0),
+           exposure_matched: bool = False, blur: Any | None = None, by_match: np.ndarray | None = None) -> Quality:
     """Run every check on one analysed run.
 
     n, n_heavy: (n_t, n_layers) counts (rows of bad frames all zero);
@@ -186,6 +187,9 @@ def assess(*, n: np.ndarray, n_heavy: np.ndarray, c0: float, first_heights: np.n
     n_bad_frames: frames without a reading; wall_detections: mean detections
     per frame left out as hemispheres of the lid or the plate; wall_glare:
     the most light [grey levels] the wall's reflections added (taken off);
+    exposure_gain: the least and the most exposure of a frame relative to
+    the first frame's, and exposure_matched whether it was taken off
+    (measure.exposure), recorded among the figures;
     blur: the :class:`~granseg.measure.classify.BlurTest` that chose the
     classes (None if none was made), recorded among the figures; by_match:
     whether each counted sphere was placed by its template's best match
@@ -253,6 +257,8 @@ def assess(*, n: np.ndarray, n_heavy: np.ndarray, c0: float, first_heights: np.n
         "spheres_per_frame": float(n[good].sum(axis=1).mean()) if good.any() else 0.0,
         "wall_detections_per_frame": float(wall_detections),
         "wall_glare_grey_levels": float(wall_glare),
+        "exposure_gain_range": [float(exposure_gain[0]), float(exposure_gain[1])],
+        "exposure_matched": bool(exposure_matched),
         "first_frame": first,
     }
     if separation is not None:

@@ -43,6 +43,14 @@ class FrameDirectory:
         for i in range(len(self.files)):
             yield i, None
 
+    def some(self, indices: set[int]) -> Iterator[tuple[int, np.ndarray]]:
+        """The readable frames among ``indices``, in order (unreadable ones left out)."""
+        for i in sorted(indices):
+            try:
+                yield i, self.read(i)
+            except BadFrame:
+                continue
+
 
 def read_image(path: Path) -> np.ndarray:
     """Decode one PNG/JPEG file strictly: an empty or truncated file is a BadFrame."""
@@ -103,6 +111,21 @@ class VideoFrames:
         finally:
             cap.release()
             self.decoded = i
+
+    def some(self, indices: set[int]) -> Iterator[tuple[int, np.ndarray]]:
+        """The decodable frames among ``indices``, in order: the stream is read through once,
+        the frames between only grabbed (not converted to BGR)."""
+        cap = cv2.VideoCapture(cv2_path(self.path))
+        try:
+            for i in range(max(indices, default=-1) + 1):
+                if not cap.grab():
+                    break
+                if i in indices:
+                    ok, img = cap.retrieve()
+                    if ok:
+                        yield i, img
+        finally:
+            cap.release()
 
 
 def open_frames(path: str | os.PathLike) -> tuple[FrameDirectory | VideoFrames, Path]:
