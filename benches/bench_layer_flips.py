@@ -1,0 +1,138 @@
+"""Why spheres on layer boundaries are counted one layer off: bias or scatter?
+
+    PYTHONPATH=python python benches/bench_layer_flips.py --scenes apparatus-S-POM-25-mp4v \
+        apparatus-S-PP-75-jpeg apparatus-C-PP-50-h264 --seeds 7 8
+
+For each run of the 2-D renderer's scenes the spheres found are matched to
+the truth (within 0.3 D) and their height error dh [D] (measured minus true,
+up positive) is split:
+
+- the mean over the run, and per class: a shift that is the same for every
+  sphere of a kind (the shading of its lower side);
+- within a sphere (its scatter from frame to frame: the renderer's spheres
+  that do not move are seen again in every frame) and between spheres (the
+  spread of their means: what a sphere's neighbours and its place do to it).
+
+and the per-frame layer count error (mean |n - n_true| / n_true) is given
+as measured and as it would be if the error were smaller, each by an oracle
+that reads the truth (so none of them can be used, they only say which part
+of the error matters): every centre moved by the run's mean dh; by its
+class's mean dh; every centre's height averaged with its matches in the
+neighbouring frames (within 0.1 D, up to ``--window`` frames either way),
+which cuts the scatter from frame to frame and keeps the rest.
+"""
+
+from __future__ import annotations
+
+import argparse
+import tempfile
+import warnings
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from granseg.measure import analyze
+from granseg.measure.layers import height, in_window, layer_index
+from granseg.synth.scenes import render_scene
+
+
+def _count_error(n: np.ndarray, truth: np.ndarray) -> float:
+    return float(np.mean(np.abs(n - truth)[truth > 0] / truth[truth > 0]))
+
+
+def _counts(spheres, ys, window) -> np.ndarray:
+    rows = []
+    for s, y in zip(spheres, ys, strict=True):
+        inside = in_window(s.x, y, window)
+        rows.append(np.bincount(layer_index(y[inside], window), minlength=15))
+    return np.array(rows)
+
+
+def _time_averaged(spheres, d: float, k: int) -> list[np.ndarray]:
+    """Each sphere's y averaged with its still matches (< 0.1 D apart) up to k frames either way."""
+    n_t = len(spheres)
+    ahead = []
+    for s0, s1 in zip(spheres[:-1], spheres[1:], strict=True):
+        dist, j = cKDTree(np.column_stack([s1.x, s1.y])).query(np.column_stack([s0.x, s0.y]))
+        ahead.append(np.where(dist < 0.1 * d, j, -1))
+    behind = []
+    for i, a in enumerate(ahead):
+        b = np.full(len(spheres[i + 1].x), -1)
+        ok = a >= 0
+        b[a[ok]] = np.nonzero(ok)[0]
+        behind.append(b)
+    out = []
+    for i, s in enumerate(spheres):
+        total, count = s.y.copy(), np.ones(len(s.y))
+        for links, step in ((ahead, 1), (behind, -1)):
+            idx = np.arange(len(s.y))
+            for m in range(1, k + 1):
+                t = i + step * m
+                if not 0 <= t < n_t:
+                    break
+                table = links[t - 1] if step == 1 else links[t]
+                idx = np.where(idx >= 0, table[np.maximum(idx, 0)], -1)
+                ok = idx >= 0
+                total[ok] += spheres[t].y[idx[ok]]
+                count[ok] += 1
+        out.append(total / count)
+    return out
+
+
+def one_run(scene: str, seed: int, window: int) -> dict:
+    with tempfile.TemporaryDirectory() as tmp, warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        r = render_scene(scene, 6, seed=seed, out_dir=tmp)
+        a = analyze(r.source, smooth=1, save=False, progress=False, workers=2)
+    win, d = r.experiment["window"], r.experiment["particle_diameter_px"]
+    p0 = r.particles[0]
+    by_sphere = np.full((len(p0), len(r.particles)), np.nan)  # dh of each still truth sphere, per frame
+    dh_all, dh_heavy, dh_light = [], [], []
+    for i, (s, p) in enumerate(zip(a.spheres, r.particles, strict=True)):
+        dist, k = cKDTree(p[:, :2]).query(np.column_stack([s.x, s.y]))
+        ok = (dist < 0.3 * d) & (p[k, 4] > 0)
+        dh = height(s.y[ok], win) - height(p[k[ok], 1], win)
+        dh_all.append(dh)
+        dh_heavy.append(dh[s.heavy[ok]])
+        dh_light.append(dh[~s.heavy[ok]])
+        gap, j0 = cKDTree(p0[:, :2]).query(p[k[ok], :2])
+        still = gap < 0.05 * d  # the same sphere, not moved since the first frame
+        by_sphere[j0[still], i] = dh[still]
+    dh = np.concatenate(dh_all)
+    mean_h, mean_l = float(np.concatenate(dh_heavy).mean()), float(np.concatenate(dh_light).mean())
+    seen = np.isfinite(by_sphere).all(axis=1)
+    table = by_sphere[seen]
+    per_layer = win[3] - win[1]
+    shift = lambda s, v: s.y + v * per_layer / 15  # noqa: E731  (height lowered by v D: y grows downward)
+    return {
+        "scene": scene, "seed": seed,
+        "dh_mean": float(dh.mean()), "dh_heavy": mean_h, "dh_light": mean_l,
+        "within_sphere_sd": float((table - table.mean(axis=1, keepdims=True)).std()),
+        "between_sphere_sd": float(table.mean(axis=1).std()),
+        "count": _count_error(a.n, r.n),
+        "count_run_mean_removed": _count_error(_counts(a.spheres, [shift(s, dh.mean()) for s in a.spheres], win), r.n),
+        "count_class_mean_removed": _count_error(_counts(
+            a.spheres, [shift(s, np.where(s.heavy, mean_h, mean_l)) for s in a.spheres], win), r.n),
+        "count_time_averaged": _count_error(_counts(a.spheres, _time_averaged(a.spheres, d, window), win), r.n),
+    }
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--scenes", nargs="+", required=True)
+    ap.add_argument("--seeds", nargs="+", type=int, default=[7, 8])
+    ap.add_argument("--window", type=int, default=2, help="frames either way averaged by the time oracle")
+    args = ap.parse_args()
+    print("scene                              seed  dh [D]: run  heavy  light | sd within between |"
+          " count: as is  run-mean  class-mean  time-avg")
+    for scene in args.scenes:
+        for seed in args.seeds:
+            o = one_run(scene, seed, args.window)
+            print(f"{scene:34s} {seed:4d}  {o['dh_mean']:+.4f} {o['dh_heavy']:+.4f} {o['dh_light']:+.4f} | "
+                  f"{o['within_sphere_sd']:.4f} {o['between_sphere_sd']:.4f} | {o['count']:.3f}  "
+                  f"{o['count_run_mean_removed']:.3f}  {o['count_class_mean_removed']:.3f}  "
+                  f"{o['count_time_averaged']:.3f}", flush=True)
+
+
+if __name__ == "__main__":
+    main()
