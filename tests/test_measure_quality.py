@@ -237,6 +237,18 @@ def test_polished_steel_over_pom_in_mpeg4_keeps_its_classes(tmp_path):
 # --------------------------------------------------------------------------- a camera that adjusts itself
 
 
+def test_cli_says_when_it_took_the_exposure_off(tmp_path, capsys):
+    """The analyze report names the drift it took off, and says nothing of a steady camera."""
+    drifting, steady = tmp_path / "drifting", tmp_path / "steady"
+    render_frames(stratified_map(3, 0.5), seed=4, out_dir=drifting, exposure_drift=-0.4, **SMALL)
+    render_frames(stratified_map(3, 0.5), seed=4, out_dir=steady, **SMALL)
+    assert main(["analyze", str(drifting), "--no-progress", "--smooth", "1"]) == 0
+    out = capsys.readouterr().out
+    assert "camera exposure changed over the run: 0.6" in out and "to 1.00 times" in out
+    assert main(["analyze", str(steady), "--no-progress", "--smooth", "1"]) == 0
+    assert "camera exposure" not in capsys.readouterr().out
+
+
 @pytest.mark.parametrize("scene, seed, drift", [
     ("S-POM-25", 9, -0.25),
     ("S-POM-25", 9, -0.5),
