@@ -13,8 +13,13 @@ up positive) is split:
   that do not move are seen again in every frame) and between spheres (the
   spread of their means: what a sphere's neighbours and its place do to it).
 
-and the per-frame layer count error (mean |n - n_true| / n_true) is given
-as measured and as it would be if the error were smaller, each by an oracle
+and the classes' relative shift read from touching pairs and taken off by
+the pipeline (``class_shift_px``, :func:`granseg.measure.outline.class_shift`)
+is set beside the truth's (light minus heavy, before it was taken off).
+
+The per-frame layer count error (mean |n - n_true| / n_true) is given
+as measured, with the classes' shift put back (as it was before
+``pipeline._level_classes``), and as it would be if the error were smaller, each by an oracle
 that reads the truth (so none of them can be used, they only say which part
 of the error matters): every centre moved by the run's mean dh; by its
 class's mean dh; every centre's height averaged with its matches in the
@@ -104,12 +109,16 @@ def one_run(scene: str, seed: int, window: int) -> dict:
     table = by_sphere[seen]
     per_layer = win[3] - win[1]
     shift = lambda s, v: s.y + v * per_layer / 15  # noqa: E731  (height lowered by v D: y grows downward)
+    taken = a.quality.figures["class_shift_px"] / (per_layer / 15)  # [D], light found higher than heavy
     return {
         "scene": scene, "seed": seed,
         "dh_mean": float(dh.mean()), "dh_heavy": mean_h, "dh_light": mean_l,
         "within_sphere_sd": float((table - table.mean(axis=1, keepdims=True)).std()),
         "between_sphere_sd": float(table.mean(axis=1).std()),
+        "shift_read": float(taken), "shift_true": mean_l - mean_h + float(taken),
         "count": _count_error(a.n, r.n),
+        "count_shift_put_back": _count_error(_counts(
+            a.spheres, [shift(s, np.where(s.heavy, 0.5, -0.5) * taken) for s in a.spheres], win), r.n),
         "count_run_mean_removed": _count_error(_counts(a.spheres, [shift(s, dh.mean()) for s in a.spheres], win), r.n),
         "count_class_mean_removed": _count_error(_counts(
             a.spheres, [shift(s, np.where(s.heavy, mean_h, mean_l)) for s in a.spheres], win), r.n),
@@ -124,12 +133,13 @@ def main() -> None:
     ap.add_argument("--window", type=int, default=2, help="frames either way averaged by the time oracle")
     args = ap.parse_args()
     print("scene                              seed  dh [D]: run  heavy  light | sd within between |"
-          " count: as is  run-mean  class-mean  time-avg")
+          " shift [D]: read  true | count: as is  shift put back  run-mean  class-mean  time-avg")
     for scene in args.scenes:
         for seed in args.seeds:
             o = one_run(scene, seed, args.window)
             print(f"{scene:34s} {seed:4d}  {o['dh_mean']:+.4f} {o['dh_heavy']:+.4f} {o['dh_light']:+.4f} | "
-                  f"{o['within_sphere_sd']:.4f} {o['between_sphere_sd']:.4f} | {o['count']:.3f}  "
+                  f"{o['within_sphere_sd']:.4f} {o['between_sphere_sd']:.4f} | "
+                  f"{o['shift_read']:+.4f} {o['shift_true']:+.4f} | {o['count']:.3f}  {o['count_shift_put_back']:.3f}  "
                   f"{o['count_run_mean_removed']:.3f}  {o['count_class_mean_removed']:.3f}  "
                   f"{o['count_time_averaged']:.3f}", flush=True)
 

@@ -107,22 +107,11 @@ def test_colour_ranges_override_learning(tmp_path, ranges, inverted):
 # out (BENCHMARKS.md reports seeds 9-12). Targets of issue 9: c_raw RMSD <=
 # 0.03 and, per frame and layer, mean |n - n_true| / n_true <= 3 %.
 NOT_YET = {
-    # two causes, by seed (c_raw RMSD 0.014-0.050 on seeds 9-12). On seeds 9
-    # and 10, 0-2 of ~820 sphere-frames are misclassified and the rest are
-    # spheres on a layer boundary counted one layer off. On seeds 11 and 12,
-    # 7-14 are misclassified: a still sphere under a speck of dust or a
-    # scratch, the same in every frame.
-    "apparatus-grey-matte-glossy-jpeg": "spheres on layer boundaries; dust over a still sphere read as the other class",
     # spheres hanging under the lid's bumps sit exactly on a layer boundary
     # (14.00 d) and MPEG-4 blurs the polished steel's outline by a few tenths
-    # of a pixel either way (seeds 9-12: c_raw RMSD 0.007-0.033, per-frame
-    # layer counts 2.6-6.2 %)
+    # of a pixel either way (seeds 9-12: c_raw RMSD 0.007-0.034, per-frame
+    # layer counts 2.8-5.9 %)
     "apparatus-S-POM-25-mp4v": "spheres on a layer boundary under the lid's bumps, MPEG-4",
-    # spheres on a layer boundary counted one layer off, a few tenths of a
-    # pixel from it. Met on seed 9 (2.8 %) until the outline bias was learned
-    # (detect._ray_bias), which moves such centres by 0.1-0.3 px and now
-    # misses it there (3.3 %); over seeds 9-12 it gains (worst 4.5 -> 3.9 %).
-    "apparatus-S-PP-75-jpeg": "spheres on layer boundaries counted one layer off (seed 9: 3.3 %)",
 }
 
 

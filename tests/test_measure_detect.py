@@ -10,7 +10,13 @@ import pytest
 from scipy.spatial import cKDTree
 
 from granseg.measure.detect import _packing, detect_particles, learn_templates
-from granseg.measure.outline import N_FIT_RAYS, fit_outlines, outline_bias
+from granseg.measure.outline import (
+    MIN_MIXED_PAIRS,
+    N_FIT_RAYS,
+    class_shift,
+    fit_outlines,
+    outline_bias,
+)
 from granseg.measure.templates import DiskScores, Templates, _disk, _masked_correlation
 
 
@@ -235,3 +241,38 @@ def test_fit_outlines_takes_more_rays_than_remap_rows():
     part = fit_outlines(smooth, many[:50], radii[:50], d)
     np.testing.assert_allclose(whole.centres[:50], part.centres, atol=1e-9)
     np.testing.assert_allclose(whole.strength[:50], part.strength, atol=1e-9)
+
+
+def _packed_frames(seed: int, n_frames: int = 6, d: float = 30.0, shift: float = 0.0, noise: float = 0.15):
+    """Frames of a jammed-like bed (a triangular lattice of touching spheres with 3 % sizes and
+    jitter), classes at random; the light ones found ``shift`` px too high, every centre off by
+    ``noise`` px. Returns [(x, y, heavy)] per frame."""
+    rng = np.random.default_rng(seed)
+    frames = []
+    for _ in range(n_frames):
+        rows, cols = 14, 20
+        j, i = np.meshgrid(np.arange(cols), np.arange(rows))
+        x = (j + 0.5 * (i % 2)) * d + rng.normal(0, 0.02 * d, j.shape)
+        y = i * d * np.sqrt(3) / 2 + rng.normal(0, 0.02 * d, j.shape)
+        heavy = rng.random(x.size) < 0.5
+        x, y = x.ravel() + rng.normal(0, noise, x.size), y.ravel() + rng.normal(0, noise, x.size)
+        frames.append((x, np.where(heavy, y, y - shift), heavy))
+    return frames
+
+
+@pytest.mark.parametrize("shift", [0.0, 0.4, -0.3])
+def test_a_class_found_higher_than_the_other_is_read_from_touching_pairs(shift):
+    """Light above heavy look further apart, heavy above light nearer, by the shift: it is read
+    back from the spheres alone, to a tenth of a pixel."""
+    got, pairs = class_shift(_packed_frames(1, shift=shift), 30.0)
+    assert pairs >= MIN_MIXED_PAIRS
+    assert got == pytest.approx(shift, abs=0.1)
+
+
+def test_too_few_mixed_pairs_read_no_shift():
+    x, y, heavy = _packed_frames(2, n_frames=1, shift=0.5)[0]
+    only_heavy = [(x, y, np.ones_like(heavy))]  # a stratified bed's band: no mixed pair
+    assert class_shift(only_heavy, 30.0) == (0.0, 0)
+    few = [(x[:40], y[:40], heavy[:40])]
+    got, pairs = class_shift(few, 30.0)
+    assert pairs < MIN_MIXED_PAIRS and got == 0.0

@@ -14,9 +14,11 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
+from scipy.spatial import cKDTree
 from sklearn.linear_model import QuantileRegressor
 
-__all__ = ["N_FIT_RAYS", "Outlines", "fit_outlines", "outline_bias", "outline_centres", "refine_circles", "ring_centre"]
+__all__ = ["MIN_MIXED_PAIRS", "N_FIT_RAYS", "Outlines", "class_shift", "fit_outlines", "outline_bias", "outline_centres",
+           "refine_circles", "ring_centre"]
 
 N_RAYS = 40
 # The rim is searched within RIM_SEARCH_PX + RIM_SEARCH_SIZE x radius of the
@@ -236,6 +238,57 @@ def outline_bias(residual: np.ndarray) -> np.ndarray:
     basis = np.column_stack([np.cos(theta), np.sin(theta)])
     circle = QuantileRegressor(quantile=0.5, alpha=0.0, solver="highs").fit(basis[enough], profile[enough])
     return np.where(enough, profile - circle.predict(basis), 0.0)
+
+
+# Touching pairs of one heavy and one light sphere, one above the other,
+# needed to read the classes' relative shift. The 2-D renderer's looks give
+# 140-470 over six frames; on the 140 of C-PP-90 (a tenth light) the shift
+# read is noisy (-0.5 px, BENCHMARKS.md); fewer than 100 are not used.
+MIN_MIXED_PAIRS = 100
+TOUCHING = 1.12  # pair distance [diameters] up to which two spheres are taken as touching
+
+
+def class_shift(frames: list[tuple[np.ndarray, np.ndarray, np.ndarray]], d: float) -> tuple[float, int]:
+    """How much higher [px] the light class's centres are found than the heavy class's, from the
+    spheres themselves; and the number of pairs it was read from (0.0 where fewer than MIN_MIXED_PAIRS).
+
+    ``frames``: per frame the spheres' x, y [px, y down] and heavy (bool);
+    ``d``: the sphere diameter [px].
+
+    The outline bias (:func:`outline_bias`) takes off what no circle
+    explains; a shift of a whole class's outlines, the same on every sphere,
+    is a circle and stays (the shaded lower side of a matte sphere lit from
+    above pulls its centre up: light PP and POM of the 2-D renderer 0.2-0.5 px,
+    the steel and ceramic less). It shows between the classes: where a
+    light sphere rests on a heavy one the two are found further apart than
+    they are by the difference of their shifts (times the cosine of their
+    line's angle to the vertical), and where a heavy one rests on a light
+    one nearer by as much. Packing does not care which class sits on top,
+    so the median distance of touching mixed pairs against sign x cosine
+    (+ light above) has that difference as its slope. Which class carries
+    how much of it, the pairs cannot tell.
+    """
+    x_all, y_all = [], []
+    for x, y, heavy in frames:
+        if len(x) < 2:
+            continue
+        pts = np.column_stack([x, y])
+        pairs = cKDTree(pts).query_pairs(TOUCHING * d, output_type="ndarray")
+        if not len(pairs):
+            continue
+        top = np.where(y[pairs[:, 0]] < y[pairs[:, 1]], pairs[:, 0], pairs[:, 1])
+        below = pairs[:, 0] + pairs[:, 1] - top
+        v = pts[below] - pts[top]
+        dist = np.hypot(v[:, 0], v[:, 1])
+        cos = v[:, 1] / np.maximum(dist, 1e-9)
+        mixed = (cos > 0.5) & (heavy[top] != heavy[below])
+        x_all.append(np.where(heavy[top][mixed], -1.0, 1.0) * cos[mixed])
+        y_all.append(dist[mixed])
+    sx = np.concatenate(x_all) if x_all else np.zeros(0)
+    if len(sx) < MIN_MIXED_PAIRS or np.all(sx > 0) or np.all(sx < 0):
+        return 0.0, len(sx)
+    fit = QuantileRegressor(quantile=0.5, alpha=0.0, solver="highs").fit(sx[:, None], np.concatenate(y_all))
+    return float(fit.coef_[0]), len(sx)
 
 
 def _sample(image: np.ndarray, px: np.ndarray, py: np.ndarray) -> np.ndarray:

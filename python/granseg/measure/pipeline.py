@@ -39,6 +39,7 @@ from granseg.measure.layers import (
     layer_counts,
     layer_index,
 )
+from granseg.measure.outline import class_shift
 from granseg.measure.preview import check_previews, write_previews
 from granseg.measure.quality import Quality, QualityWarning, assess
 from granseg.measure.sources import BadFrame, FrameDirectory, VideoFrames, open_frames
@@ -187,9 +188,10 @@ def analyze(
         check_previews(Path(preview), [source.names[i] for i in sorted(keep) if i < len(source.names)], force)
     spheres, crops, bad, names = _detect_all(source, exp, workers, progress, keep)
     classes = _classify(spheres, exp, crops)
+    shift = _level_classes(spheres, exp)
     result = _assemble(spheres, exp, fps, smooth, names, bad)
     result.classes = classes
-    result.quality = _assess(result)
+    result.quality = _assess(result, shift)
     if not result.quality.ok:
         warnings.warn(f"{exp.path.parent}: the map failed its quality checks: "
                       + "; ".join(f"{c.name} {c.value:.3f} (limit {c.rule} {c.limit:.3f})"
@@ -538,7 +540,18 @@ def _smeared_if_blurred(sharp: MaterialClasses, first: FrameSpheres, crop: np.nd
     return replace(smeared if test.smeared else sharp, blur=test)
 
 
-def _assess(result: Analysis) -> Quality:
+def _level_classes(spheres: list[FrameSpheres | None], exp: Experiment) -> tuple[float, int]:
+    """Take the classes' relative shift off (outline.class_shift), half from each: the light
+    class's centres moved down by half of it, the heavy class's up. Returns the shift [px] and
+    the pairs it was read from."""
+    good = [s for s in spheres if s is not None]
+    shift, pairs = class_shift([(s.x, s.y, s.heavy) for s in good], exp.particle_diameter_px)
+    for s in good:
+        s.y = s.y + np.where(s.heavy, -0.5, 0.5) * shift
+    return shift, pairs
+
+
+def _assess(result: Analysis, shift: tuple[float, int] = (0.0, 0)) -> Quality:
     good = [s for s in result.spheres if s is not None]
     first = good[0]
     learned = result.classes is not None
@@ -554,6 +567,7 @@ def _assess(result: Analysis) -> Quality:
         wall_glare=float(max(s.glare for s in good)),
         exposure_gain=(float(min(s.gain for s in good)), float(max(s.gain for s in good))),
         exposure_matched=any(s.gain_taken_off for s in good),
+        class_shift=shift,
         blur=result.classes.blur if learned else None,
         by_match=np.concatenate([np.zeros(len(s.x), bool) if s.by_match is None else s.by_match for s in good]),
     )

@@ -172,7 +172,7 @@ def assess(*, n: np.ndarray, n_heavy: np.ndarray, c0: float, first_heights: np.n
            p_heavy: np.ndarray | None,
            separation: Any | None, n_bad_frames: int, wall_detections: float,
            wall_glare: float = 0.0, exposure_gain: tuple[float, float] = (1.0, 1.0),
-           exposure_matched: bool = False, blur: Any | None = None, by_match: np.ndarray | None = None) -> Quality:
+           exposure_matched: bool = False, class_shift: tuple[float, int] = (0.0, 0), blur: Any | None = None, by_match: np.ndarray | None = None) -> Quality:
     """Run every check on one analysed run.
 
     n, n_heavy: (n_t, n_layers) counts (rows of bad frames all zero);
@@ -189,7 +189,9 @@ def assess(*, n: np.ndarray, n_heavy: np.ndarray, c0: float, first_heights: np.n
     the most light [grey levels] the wall's reflections added (taken off);
     exposure_gain: the least and the most exposure of a frame relative to
     the first frame's, and exposure_matched whether it was taken off
-    (measure.exposure), recorded among the figures;
+    (measure.exposure), recorded among the figures; class_shift: how much
+    higher [px] the light class's centres were found than the heavy's, taken
+    off, and the touching pairs it was read from (outline.class_shift);
     blur: the :class:`~granseg.measure.classify.BlurTest` that chose the
     classes (None if none was made), recorded among the figures; by_match:
     whether each counted sphere was placed by its template's best match
@@ -259,6 +261,8 @@ def assess(*, n: np.ndarray, n_heavy: np.ndarray, c0: float, first_heights: np.n
         "wall_glare_grey_levels": float(wall_glare),
         "exposure_gain_range": [float(exposure_gain[0]), float(exposure_gain[1])],
         "exposure_matched": bool(exposure_matched),
+        "class_shift_px": float(class_shift[0]),
+        "class_shift_pairs": int(class_shift[1]),
         "first_frame": first,
     }
     if separation is not None:
