@@ -109,8 +109,9 @@ class Exposure:
 
 
 def survey_indices(n_frames: int, first: int) -> set[int]:
-    """The frames to survey: ``first`` and SURVEY_FRAMES spread evenly from it to the last."""
-    return {first, *np.linspace(first, max(n_frames - 1, first), SURVEY_FRAMES).round().astype(int).tolist()}
+    """The frames to survey: SURVEY_FRAMES spread evenly from ``first`` to the last, less ``first``
+    itself (it is the reference, already read)."""
+    return set(np.linspace(first, max(n_frames - 1, first), SURVEY_FRAMES).round().astype(int).tolist()) - {first}
 
 
 def survey(levels: Iterable[float], reference: float) -> Exposure:
