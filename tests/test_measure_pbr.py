@@ -33,7 +33,7 @@ PBR = Path(__file__).parent / "fixtures" / "pbr"
 LOOKS = sorted(p.name for p in PBR.iterdir() if (p / "truth.npz").is_file())
 
 # Looks whose map misses a target today, and why (BENCHMARKS.md, "Footage it
-# was not tuned on"). All but pom-pp are flagged by their quality checks.
+# was not tuned on"). All but pom-pp and ceramic-pom are flagged by their quality checks.
 MISSED = {
     "glass-pom": "transparent glass: centres do not settle on its outline, and some glass among POM is "
                  "taken for POM (flagged)",
@@ -55,8 +55,17 @@ MISSED = {
     # a bias that turns across the frame; 4.2 % with the classes' relative
     # shift taken off (outline.class_shift)
     "pom-pp": "centres biased outward by the side lamps' shading (not flagged)",
+    # the four pairs of the paper's five materials it did not mix, rendered
+    # after every choice above was made (seeds 18-21): glass and mirror steel
+    # as on the other fixtures; ceramic over POM misses the counts a little, as
+    # pom-pp does, and is not flagged either
+    "steel-glass": "mirror steel over transparent glass: neither settles on its outline, classes ambiguous "
+                   "(flagged)",
+    "steel-ceramic": "mirror steel over ceramic: counts 4.0 % (flagged: centres_settled)",
+    "ceramic-glass": "transparent glass: centres do not settle on its outline (flagged)",
+    "ceramic-pom": "counts 3.4 % (not flagged)",
 }
-SILENT = ("pom-pp",)
+SILENT = ("pom-pp", "ceramic-pom")
 
 
 @cache
@@ -102,7 +111,11 @@ def test_spheres_placed_by_their_template_are_reported(tmp_path, capsys):
 
 
 def test_every_look_is_here():
-    assert len(LOOKS) >= 7, LOOKS
+    """Every pair of the paper's five materials, and a pair that differs in gloss only."""
+    materials = ("steel", "ceramic", "glass", "pom", "pp")
+    pairs = {tuple(sorted(look.split("-"))) for look in LOOKS}
+    assert all(tuple(sorted((a, b))) in pairs for i, a in enumerate(materials) for b in materials[i + 1:]), LOOKS
+    assert "grey-glossy-matte" in LOOKS
 
 
 @pytest.mark.parametrize("look", [

@@ -6,7 +6,8 @@ follows the map ``c`` (see :mod:`granseg.synth.frames`);
 ``campaign(...)`` builds a set of virtual experiments (granseg.synth.virtual),
 measured under a named noise process (``NOISE_PROCESSES``, ``NoiseProcess``);
 ``SCENES`` names the renderer settings the detector is tested on;
-``MIXTURE_SCENES`` (the paper's six mixtures, grey-on-grey pairs) and
+``MIXTURE_SCENES`` (the paper's six mixtures, the other pairs of its five
+materials, grey-on-grey pairs) and
 ``APPARATUS_SCENES`` (bumpy lid and plate, motion blur, wall reflections,
 dust, wide-angle lens, JPEG and video) the harder looks it must yet handle;
 ``render_scene(name, n_t)`` renders any of them.

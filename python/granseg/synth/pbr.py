@@ -135,7 +135,9 @@ LAMPS: dict[str, list[tuple[float, float]]] = {
 LAMP_SIZE = (60.0, 200.0)
 
 # The fixture set: name -> render_pbr_frames arguments (see the module docstring).
-# The paper's six pairs (M_g from its Table 1) and a pair that differs in gloss only.
+# The paper's six pairs (M_g from its Table 1), the four other pairs of its five
+# materials (M_g as Table 1 gives it for every run: 1.2e-3 m^3 of solid times the
+# mean solid density) and a pair that differs in gloss only.
 FIXTURE_LOOKS: dict[str, dict[str, Any]] = {
     "glass-pom": dict(heavy="glass", light="pom", c0=0.5, seed=11, experiment={"M_g": 2.52}),
     "steel-pom": dict(heavy="steel", light="pom", c0=0.25, seed=12, experiment={"M_g": 3.92}),
@@ -143,6 +145,10 @@ FIXTURE_LOOKS: dict[str, dict[str, Any]] = {
     "steel-pp": dict(heavy="steel", light="pp", c0=0.5, seed=14, experiment={"M_g": 5.25}),
     "glass-pp": dict(heavy="glass", light="pp", c0=0.5, seed=15, experiment={"M_g": 2.04}),
     "pom-pp": dict(heavy="pom", light="pp", c0=0.5, seed=16, experiment={"M_g": 1.62}),
+    "steel-glass": dict(heavy="steel", light="glass", c0=0.5, seed=18, experiment={"M_g": 6.15}),
+    "steel-ceramic": dict(heavy="steel", light="ceramic", c0=0.75, seed=19, experiment={"M_g": 8.07}),
+    "ceramic-glass": dict(heavy="ceramic", light="glass", c0=0.5, seed=20, experiment={"M_g": 3.57}),
+    "ceramic-pom": dict(heavy="ceramic", light="pom", c0=0.25, seed=21, experiment={"M_g": 2.63}),
     "grey-glossy-matte": dict(heavy="grey-glossy", light="grey-matte", c0=0.5, seed=17,
                               experiment={"rho_h": 2000.0, "rho_l": 1000.0, "M_g": 2.0}),
 }

@@ -12,7 +12,9 @@ side lamp (the hardest shading), a strong barrel lens, heavy JPEG
 compression, and spheres 20 to 64 px across.
 
 ``MIXTURE_SCENES`` -- every mixture of the paper's Table 1 (S-PP, S-POM,
-C-PP, G-PP, POM-PP, G-POM) at one of its heavy fractions, and grey-on-grey
+C-PP, G-PP, POM-PP, G-POM) at one of its heavy fractions, the two pairs of
+its five materials that neither Table 1 nor SCENES holds (steel over glass,
+S-G-50; ceramic over POM, C-POM-25), and grey-on-grey
 pairs whose materials differ only in brightness and/or gloss: polished
 steel over dark-grey POM (S-POM-25), matte light-grey POM over glossy grey
 PP of the same mean brightness (grey-matte-glossy), satin steel over
@@ -78,6 +80,12 @@ MIXTURE_SCENES: dict[str, dict[str, Any]] = {
     "G-PP-50": dict(heavy="glass", light="pp", lighting="diffuse", experiment=_paper("G-PP-50", 2.04)),
     "POM-PP-50": dict(heavy="pom", light="pp", experiment=_paper("POM-PP-50", 1.62)),
     "G-POM-50": dict(heavy="glass", light="pom", experiment=_paper("G-POM-50", 2.52)),
+    # the two pairs of the paper's five materials that neither its Table 1 nor
+    # SCENES holds (ceramic-glass and steel-ceramic are there), so that every
+    # pair is tested; M_g as Table 1 gives it: 1.2e-3 m^3 of solid times the
+    # mean solid density
+    "S-G-50": dict(heavy="steel", light="glass", experiment=_paper("S-G-50", 6.15)),
+    "C-POM-25": dict(heavy="ceramic", light="pom", c0=0.25, experiment=_paper("C-POM-25", 2.63)),
     # grey on grey: matte light-grey POM over glossy grey PP, mean brightness within 2 %
     "grey-matte-glossy": dict(heavy="pom-grey", light="pp-grey", experiment=_paper("POM-PP-50", 1.62)),
     # grey on grey: satin steel over light-grey POM of the same mean brightness
