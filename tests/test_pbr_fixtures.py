@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from granseg.measure import load_experiment
-from granseg.synth.pbr import FIXTURE_LOOKS, fixture_map, load_fixture
+from granseg.synth.pbr import FIXTURE_LOOKS, PBR_MATERIALS, fixture_map, load_fixture
 
 ROOT = Path(__file__).parent / "fixtures" / "pbr"
 LOOKS = sorted(FIXTURE_LOOKS)
@@ -25,7 +25,7 @@ LOOKS = sorted(FIXTURE_LOOKS)
 def test_every_look_is_rendered_and_the_folder_stays_small():
     assert sorted(p.name for p in ROOT.iterdir() if p.is_dir()) == LOOKS
     size = sum(p.stat().st_size for p in ROOT.rglob("*") if p.is_file())
-    assert size < 4.5e6
+    assert size < 0.7e6 * len(LOOKS)  # four JPEG frames and the truth: about 0.6 MB a look
 
 
 @pytest.mark.parametrize("look", LOOKS)
@@ -84,7 +84,10 @@ def test_layers_are_heights_above_the_plate(look):
         apparent = (y1 - p[inside, 1]) / (y1 - y0) * n_layers
         # exact in the centre column; towards the window's corners spheres look up to ~0.2 D closer to mid-height
         assert np.max(np.abs(apparent - h[inside])) < 0.25
-        np.testing.assert_allclose(p[:, 2], d, rtol=0.1)
+        # the diameters spread as the material's do (ceramic's 3.5 % reaches 10 % in one sphere of
+        # ceramic-glass): within four standard deviations and the wall's widening
+        spread = max(PBR_MATERIALS[FIXTURE_LOOKS[look][k]]["size_spread"] for k in ("heavy", "light"))
+        np.testing.assert_allclose(p[:, 2], d, rtol=max(0.1, 4 * spread + 0.02))
     assert abs(r.n.sum() - r.n_phys.sum()) <= 0.05 * r.n.sum()
     # the heavy share follows the map: stratified first, mixed later (whole spheres, window edges)
     c = r.c
