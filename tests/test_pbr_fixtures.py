@@ -25,7 +25,7 @@ LOOKS = sorted(FIXTURE_LOOKS)
 def test_every_look_is_rendered_and_the_folder_stays_small():
     assert sorted(p.name for p in ROOT.iterdir() if p.is_dir()) == LOOKS
     size = sum(p.stat().st_size for p in ROOT.rglob("*") if p.is_file())
-    assert size < 0.7e6 * len(LOOKS)  # four JPEG frames and the truth: about 0.6 MB a look
+    assert size < 0.65e6 * len(LOOKS)  # four JPEG frames and the truth: the 4.5 MB the first seven had
 
 
 @pytest.mark.parametrize("look", LOOKS)
@@ -84,10 +84,15 @@ def test_layers_are_heights_above_the_plate(look):
         apparent = (y1 - p[inside, 1]) / (y1 - y0) * n_layers
         # exact in the centre column; towards the window's corners spheres look up to ~0.2 D closer to mid-height
         assert np.max(np.abs(apparent - h[inside])) < 0.25
-        # the diameters spread as the material's do (ceramic's 3.5 % reaches 10 % in one sphere of
-        # ceramic-glass): within four standard deviations and the wall's widening
-        spread = max(PBR_MATERIALS[FIXTURE_LOOKS[look][k]]["size_spread"] for k in ("heavy", "light"))
-        np.testing.assert_allclose(p[:, 2], d, rtol=max(0.1, 4 * spread + 0.02))
+    # The bed draws every sphere's diameter with the wider of the two materials' spreads (a
+    # place keeps its size when the map changes its kind); the wall changes apparent sizes
+    # by about 1 % more. The mean is the nominal diameter, the spread that of the material,
+    # and no sphere lies further out than four of them (ceramic's 3.5 %: one sphere of
+    # ceramic-glass is 10 % off; steel's 0.4 % with POM: 3.9 % at most).
+    spread = max(PBR_MATERIALS[FIXTURE_LOOKS[look][k]]["size_spread"] for k in ("heavy", "light"))
+    ratio = np.concatenate([p[:, 2] for p in r.particles]) / d
+    assert abs(ratio.mean() - 1) < 0.01 and ratio.std() < 1.2 * spread + 0.01, (ratio.mean(), ratio.std())
+    assert np.max(np.abs(ratio - 1)) < 4 * spread + 0.02
     assert abs(r.n.sum() - r.n_phys.sum()) <= 0.05 * r.n.sum()
     # the heavy share follows the map: stratified first, mixed later (whole spheres, window edges)
     c = r.c
