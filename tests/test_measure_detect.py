@@ -13,11 +13,18 @@ from granseg.measure.detect import _packing, detect_particles, learn_templates
 from granseg.measure.outline import (
     MIN_MIXED_PAIRS,
     N_FIT_RAYS,
+    _lad_slope,
     class_shift,
     fit_outlines,
     outline_bias,
 )
-from granseg.measure.templates import DiskScores, Templates, _disk, _masked_correlation
+from granseg.measure.templates import (
+    DiskScores,
+    Templates,
+    _disk,
+    _masked_correlation,
+    _middle_colours,
+)
 
 
 def test_masked_correlation_equals_opencv():
@@ -267,6 +274,35 @@ def test_a_class_found_higher_than_the_other_is_read_from_touching_pairs(shift):
     got, pairs = class_shift(_packed_frames(1, shift=shift), 30.0)
     assert pairs >= MIN_MIXED_PAIRS
     assert got == pytest.approx(shift, abs=0.1)
+
+
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_the_median_line_is_the_linear_programs(seed):
+    """The classes' shift is the slope of a least-absolute-deviations line; the bounded search
+    finds the linear program's (sklearn, HiGHS) to a millionth of a pixel, heavy tails and all."""
+    from sklearn.linear_model import QuantileRegressor
+
+    rng = np.random.default_rng(seed)
+    n = 400
+    x = rng.choice([-1.0, 1.0], n) * rng.uniform(0.5, 1.0, n)
+    y = 30.0 + rng.uniform(-0.6, 0.6) * x + rng.standard_t(2, n) * 0.5
+    exact = QuantileRegressor(quantile=0.5, alpha=0.0, solver="highs").fit(x[:, None], y).coef_[0]
+    assert _lad_slope(x, y, 30.0) == pytest.approx(exact, abs=1e-5)
+
+
+def test_the_middles_colours_are_the_box_blurs():
+    """The box means read at the centres from an integral image are cv2.blur's, to the bit, at
+    the image's edges (centres outside it included) and in grey."""
+    rng = np.random.default_rng(4)
+    image = rng.integers(0, 256, (90, 70, 3)).astype(np.uint8)
+    centres = np.column_stack([rng.uniform(-5, 75, 60), rng.uniform(-5, 95, 60)])
+    for img, d in ((image, 30.0), (image, 3.0), (image[..., 1], 30.0)):
+        k = max(1, int(0.25 * d))
+        im3 = img if img.ndim == 3 else img[..., None]
+        xi = np.clip(np.rint(centres[:, 0]).astype(int), 0, im3.shape[1] - 1)
+        yi = np.clip(np.rint(centres[:, 1]).astype(int), 0, im3.shape[0] - 1)
+        blurred = cv2.blur(im3.astype(np.float32), (2 * k + 1, 2 * k + 1)).reshape(*im3.shape[:2], -1)
+        np.testing.assert_array_equal(_middle_colours(img, centres, d), blurred[yi, xi])
 
 
 def test_too_few_mixed_pairs_read_no_shift():

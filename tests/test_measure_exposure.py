@@ -24,6 +24,16 @@ def _bed(seed: int, gain: float = 1.0, size=(200, 300)) -> np.ndarray:
     return np.repeat(grey[..., None], 3, axis=2).astype(np.uint8)
 
 
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_the_level_counted_by_grey_level_is_the_sorted_middle_half(seed):
+    """The level from the 256 levels' counts is the mean of the middle half by rank, as sorting
+    gives it, with a third of the bed clipped at 255 and on an odd number of pixels."""
+    bed = _bed(seed, gain=1.6, size=(101, 33))
+    grey = np.sort(bed[..., 0].ravel())
+    lo, hi = grey.size // 4, (3 * grey.size) // 4
+    assert bed_level(bed, (0, 101)) == pytest.approx(grey[lo:hi].mean(), rel=1e-12)
+
+
 def test_the_level_is_the_same_for_the_same_bed_rearranged():
     """The window holds the same materials in every frame, only moved: the level does not move."""
     assert bed_level(_bed(1), ROWS) == pytest.approx(bed_level(_bed(2), ROWS), rel=0.01)
@@ -64,3 +74,20 @@ def test_the_survey_spreads_over_the_run_after_the_first_readable_frame():
     assert min(picked) > 3 and max(picked) == 499 and len(picked) == SURVEY_FRAMES - 1
     assert survey_indices(5, 0) == {1, 2, 3, 4}
     assert survey_indices(1, 0) == set()
+
+
+def test_the_surveyed_frames_come_in_order_and_the_unreadable_are_left_out(tmp_path):
+    """Decoded in threads, the survey's frames still come in index order, each its own image; an
+    empty and a truncated file are skipped, not raised."""
+    import cv2
+
+    from granseg.measure.sources import FrameDirectory
+
+    for i in range(7):
+        cv2.imwrite(str(tmp_path / f"frame_{i:04d}.png"), np.full((8, 6, 3), 10 * i, np.uint8))
+    (tmp_path / "frame_0003.png").write_bytes(b"")
+    data = (tmp_path / "frame_0005.png").read_bytes()
+    (tmp_path / "frame_0005.png").write_bytes(data[: len(data) // 2])
+    got = list(FrameDirectory(tmp_path).some({6, 0, 3, 5, 2, 4}))
+    assert [i for i, _ in got] == [0, 2, 4, 6]
+    assert [int(img[0, 0, 0]) for _, img in got] == [0, 20, 40, 60]

@@ -177,6 +177,23 @@ def test_checkerboards_recover_the_camera_and_straighten_lines(tmp_path):
     assert _row_curvature(find_checkerboard(und, (9, 6))) < 0.3
 
 
+def test_the_undistortion_tables_send_each_pixel_through_the_lens():
+    """A crop's tables (past the image's edge too) say where the lens puts each undistorted pixel:
+    the pixel's ray projected through the camera matrix and distortion, as cv2.projectPoints does."""
+    size = (640, 480)
+    k, _ = default_camera(size, k1=-0.3)
+    dist = np.array([-0.32, 0.11, 0.0005, -0.0004, -0.015])
+    x0, y0, x1, y1 = (-20, 30, 500, 470)
+    und = Undistorter(k, dist, size, (x0, y0, x1, y1))
+    xs, ys = np.meshgrid(np.arange(x0, x1, dtype=float), np.arange(y0, y1, dtype=float))
+    rays = np.stack([(xs - k[0, 2]) / k[0, 0], (ys - k[1, 2]) / k[1, 1], np.ones_like(xs)], -1)
+    seen, _ = cv2.projectPoints(rays.reshape(-1, 1, 3), np.zeros(3), np.zeros(3), k, dist)
+    np.testing.assert_allclose(und._source.reshape(-1, 2), seen.reshape(-1, 2), atol=1e-3)
+    assert und.inside_image((100, 100, 400, 400))
+    wide = Undistorter(k, dist, size, (-400, 0, 100, 100))  # far past the left edge, even through a barrel
+    assert wide._source[0, 0, 0] < 0 and not wide.inside_image((-400, 0, 100, 100))
+
+
 def _row_curvature(corners) -> float:
     """Largest distance [px] of a board corner from the straight line through its row."""
     rows = corners.reshape(6, 9, 2)

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
+from scipy.optimize import minimize_scalar
 from scipy.spatial import cKDTree
 from sklearn.linear_model import QuantileRegressor
 
@@ -287,8 +288,23 @@ def class_shift(frames: list[tuple[np.ndarray, np.ndarray, np.ndarray]], d: floa
     sx = np.concatenate(x_all) if x_all else np.zeros(0)
     if len(sx) < MIN_MIXED_PAIRS or np.all(sx > 0) or np.all(sx < 0):
         return 0.0, len(sx)
-    fit = QuantileRegressor(quantile=0.5, alpha=0.0, solver="highs").fit(sx[:, None], np.concatenate(y_all))
-    return float(fit.coef_[0]), len(sx)
+    return _lad_slope(sx, np.concatenate(y_all), d), len(sx)
+
+
+def _lad_slope(x: np.ndarray, y: np.ndarray, d: float) -> float:
+    """Slope of the least-absolute-deviations line y = a + b x, |b| <= d.
+
+    For a given slope the best intercept is the median of y - b x, and the
+    loss left is convex in b, so a bounded scalar search finds its minimum.
+    It agrees with the linear program (sklearn's QuantileRegressor, HiGHS) to
+    1e-6 px and took 2 ms where that took 1 s on 6000 pairs (a 120-frame
+    run: 2.1 s of its 11, BENCHMARKS.md).
+    """
+    def loss(b: float) -> float:
+        r = y - b * x
+        return float(np.abs(r - np.median(r)).sum())
+
+    return float(minimize_scalar(loss, bounds=(-d, d), method="bounded", options={"xatol": 1e-7 * d}).x)
 
 
 def _sample(image: np.ndarray, px: np.ndarray, py: np.ndarray) -> np.ndarray:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 from collections.abc import Iterator
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import cv2
@@ -44,12 +45,26 @@ class FrameDirectory:
             yield i, None
 
     def some(self, indices: set[int]) -> Iterator[tuple[int, np.ndarray]]:
-        """The readable frames among ``indices``, in order (unreadable ones left out)."""
-        for i in sorted(indices):
-            try:
-                yield i, self.read(i)
-            except BadFrame:
-                continue
+        """The readable frames among ``indices``, in order (unreadable ones left out).
+
+        Decoded a core's worth at a time in threads (the exposure survey reads
+        24 frames before the analysis starts: 0.4 s of a 30-frame run at
+        1920 x 1440), so no more than that many frames are held at once.
+        """
+        order = sorted(indices)
+        threads = max(1, min(os.cpu_count() or 1, len(order)))
+        with ThreadPoolExecutor(threads) as pool:
+            for start in range(0, len(order), threads):
+                chunk = order[start:start + threads]
+                for i, image in zip(chunk, pool.map(self._readable, chunk), strict=True):
+                    if image is not None:
+                        yield i, image
+
+    def _readable(self, i: int) -> np.ndarray | None:
+        try:
+            return self.read(i)
+        except BadFrame:
+            return None
 
 
 def read_image(path: Path) -> np.ndarray:
