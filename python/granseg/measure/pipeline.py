@@ -306,12 +306,13 @@ class _FrameWorker:
                              f"({image_size[0]} x {image_size[1]} px) once undistorted with its "
                              "'camera_matrix' and 'dist_coeffs'")
 
-    def survey(self, source: FrameDirectory | VideoFrames, first_index: int, first: np.ndarray) -> None:
+    def survey(self, source: FrameDirectory | VideoFrames, first_index: int, first: np.ndarray,
+               workers: int = 1) -> None:
         """Survey the run's exposure (measure.exposure): the first frame's bed level and the largest
         gain of a few frames spread over the run, which every frame is then matched to."""
         reference = bed_level(self.undistort(_bgr(first)), self.bed_rows)
         levels = (bed_level(self.undistort(_bgr(img)), self.bed_rows)
-                  for _, img in source.some(survey_indices(len(source), first_index))
+                  for _, img in source.some(survey_indices(len(source), first_index), workers)
                   if img.shape[:2] == first.shape[:2])  # a frame of another size is reported later
         self.exposure = survey(levels, reference)
 
@@ -373,7 +374,7 @@ def _detect_all(source, exp, workers, progress, keep):
     except ValueError:
         _check_same_size(source, first_index, first)  # a stray first frame, not the window, is to blame
         raise
-    worker.survey(source, first_index, first)
+    worker.survey(source, first_index, first, n_workers)
     worker.learn(first)
     results: dict[int, Any] = {}
     crops: dict[int, np.ndarray] = {}

@@ -44,15 +44,15 @@ class FrameDirectory:
         for i in range(len(self.files)):
             yield i, None
 
-    def some(self, indices: set[int]) -> Iterator[tuple[int, np.ndarray]]:
+    def some(self, indices: set[int], workers: int = 1) -> Iterator[tuple[int, np.ndarray]]:
         """The readable frames among ``indices``, in order (unreadable ones left out).
 
-        Decoded a core's worth at a time in threads (the exposure survey reads
+        Decoded ``workers`` at a time in threads (the exposure survey reads
         24 frames before the analysis starts: 0.4 s of a 30-frame run at
         1920 x 1440), so no more than that many frames are held at once.
         """
         order = sorted(indices)
-        threads = max(1, min(os.cpu_count() or 1, len(order)))
+        threads = max(1, min(int(workers), len(order)))
         with ThreadPoolExecutor(threads) as pool:
             for start in range(0, len(order), threads):
                 chunk = order[start:start + threads]
@@ -127,9 +127,10 @@ class VideoFrames:
             cap.release()
             self.decoded = i
 
-    def some(self, indices: set[int]) -> Iterator[tuple[int, np.ndarray]]:
+    def some(self, indices: set[int], workers: int = 1) -> Iterator[tuple[int, np.ndarray]]:
         """The decodable frames among ``indices``, in order: the stream is read through once,
-        the frames between only grabbed (not converted to BGR)."""
+        the frames between only grabbed (not converted to BGR); ``workers`` is not used (a stream
+        is read in order)."""
         cap = cv2.VideoCapture(cv2_path(self.path))
         try:
             for i in range(max(indices, default=-1) + 1):
