@@ -88,7 +88,8 @@ def score(r, a) -> dict:
 
 def _blur_figures(a) -> dict:
     """Which classes were kept (learned with smeared copies or not) and the blur test's figures."""
-    keys = ("classes_learned_smeared", "blur_disagreements", "blur_disagreements_near_plate", "evidence_against_blur")
+    keys = ("classes_learned_smeared", "blur_disagreements", "blur_disagreements_near_plate", "evidence_against_blur",
+            "gloss_at_learned_spots")
     return {k: a.quality.figures.get(k) for k in keys}
 
 
@@ -160,7 +161,8 @@ def main() -> None:
                   f"{'ok' if s['quality_ok'] else 'FAILED ' + ','.join(s['failed_checks'])} "
                   f"(centres_settled {s['centres_settled']:.2f}; smeared classes "
                   f"{'kept' if s['classes_learned_smeared'] else 'not kept'}, "
-                  f"{s['blur_disagreements_near_plate']}/{s['blur_disagreements']} near the plate) | bias heavy "
+                  f"{s['blur_disagreements_near_plate']}/{s['blur_disagreements']} near the plate; gloss "
+                  f"{'at learned spots' if s['gloss_at_learned_spots'] else 'by maxima'}) | bias heavy "
                   f"{s['heavy_bias_px']} light {s['light_bias_px']} px, p95 {s['heavy_p95_px']:.2f} "
                   f"{s['light_p95_px']:.2f} px", flush=True)
         pooled = float((np.abs(detected - true) / true).max())

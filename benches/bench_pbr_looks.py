@@ -141,7 +141,8 @@ def main() -> None:
                 f"{100 * r['frame_layer_count_error']:4.1f} %  centres_settled {settled}  "
                 f"{'ok' if r['quality_ok'] else 'flagged: ' + ', '.join(r['failed_checks'])}  smeared classes "
                 f"{'kept' if r['classes_learned_smeared'] else 'not kept'} "
-                f"({r['blur_disagreements_near_plate']}/{r['blur_disagreements']} near the plate)")
+                f"({r['blur_disagreements_near_plate']}/{r['blur_disagreements']} near the plate), gloss "
+                f"{'at learned spots' if r['gloss_at_learned_spots'] else 'by maxima'}")
         if args.polarities:
             line += f"  | bands {r['band_polarities']}"
             if "packing" in r:

@@ -22,6 +22,8 @@ from granseg.measure.classify import (
     ResolvedScaler,
     blur_test,
     learn_classes,
+    learn_spots,
+    sphere_features,
 )
 from granseg.measure.exposure import DRIFT_LIMIT
 from granseg.measure.quality import Quality, assess
@@ -211,6 +213,62 @@ def test_a_feature_constant_among_the_labelled_spheres_does_not_decide_a_class()
     scaler = classes.model.steps[0][1]
     assert isinstance(scaler, ResolvedScaler)
     assert scaler.scale_[list(LEARNED).index(col["a"])] == RESOLUTION["a"] == 1.0
+
+
+def _grey_spheres(rng, specks, d: int = 24):
+    """15 rows of 16 grey spheres of one shade; those above the middle glossy (the two lamps' images
+    at the same places on each), those below matte. ``specks``: (sphere, (dx, dy) [diameters]) of
+    bright specks of dust on the wall. Returns the image, centres, heights [diameters], heavy."""
+    step = d + 3
+    img = np.full((15 * step + 20, 16 * step + 20), 40.0)
+    yy, xx = np.mgrid[:img.shape[0], :img.shape[1]]
+    rows, cols = np.divmod(np.arange(15 * 16), 16)
+    centres = np.column_stack([12 + step * cols, img.shape[0] - 12 - step * rows]) + rng.uniform(-1, 1, (240, 2))
+    heights = rows + 0.5
+    heavy = heights > 7.5
+
+    def speck(x, y, amplitude):
+        img[:] += amplitude * np.exp(-((xx - x) ** 2 + (yy - y) ** 2) / (2 * 1.2 ** 2))
+
+    for (x, y), glossy in zip(centres, heavy, strict=True):
+        r2 = ((xx - x) ** 2 + (yy - y) ** 2) / (0.5 * d) ** 2
+        img[r2 < 1] = 110 - 30 * r2[r2 < 1] + rng.normal(0, 2)
+        if glossy:
+            speck(x - 0.25 * d, y - 0.2 * d, 130)
+            speck(x + 0.2 * d, y - 0.25 * d, 110)
+    for i, (dx, dy) in specks:
+        speck(centres[i, 0] + dx * d, centres[i, 1] + dy * d, 130)
+    img += rng.normal(0, 2, img.shape)
+    return np.clip(img, 0, 255).astype(np.uint8), centres, heights, heavy
+
+
+def test_a_speck_of_dust_lights_a_matte_spheres_brightest_point_but_not_the_learned_spots():
+    """Grey glossy over grey matte: a bright speck on the wall over a matte sphere gives it a
+    glossy sphere's sharpest highlight (the `specular` maximum) but not the glossy spheres'
+    highlights where they show them. Two specks over the first frame's labelled matte spheres
+    make the maxima the worse cue there, and the classes read gloss at the spots."""
+    rng = np.random.default_rng(3)
+    d = 24
+    first, centres, heights, _ = _grey_spheres(rng, [(20, (0.1, 0.25)), (40, (-0.3, 0.05))], d)
+    spots = learn_spots(first, centres, d, heights, 0.5, 15)
+    assert spots is not None and np.isclose(np.abs(spots).sum(), 1.0)
+    classes = learn_classes(sphere_features(first, centres, d, spots), heights, 0.5, 15)
+    assert classes.gloss_at_spots
+    matte = np.flatnonzero(heights < 6.5)
+    specked = rng.choice(matte, 12, replace=False)
+    later, centres, heights, heavy = _grey_spheres(rng, list(zip(specked, rng.uniform(-0.3, 0.3, (12, 2)), strict=True)), d)
+    feats = sphere_features(later, centres, d, spots)
+    col = {name: i for i, name in enumerate(FEATURES)}
+    clean = np.setdiff1d(np.flatnonzero(~heavy), specked)
+    for name in ("specular", "highlight_at_spots"):
+        glossy, plain, dusty = (np.median(feats[s, col[name]]) for s in (heavy, clean, specked))
+        # where between matte (0) and glossy (1) a specked matte sphere reads, in the median
+        where = (dusty - plain) / (glossy - plain)
+        if name == "specular":
+            assert where > 0.8, where  # the maximum takes the speck for a lamp's image
+        else:
+            assert where < 0.2, where  # the learned spots do not
+            assert feats[specked, col[name]].max() < 0.5 * (glossy + plain)
 
 
 def test_polished_steel_over_pom_in_mpeg4_keeps_its_classes(tmp_path):

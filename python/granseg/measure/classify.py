@@ -43,14 +43,21 @@ from sklearn.preprocessing import StandardScaler
 
 __all__ = ["BLUR_ZONE", "FEATURES", "MARGIN", "MARGINS", "RESOLUTION", "SMEARS", "BlurTest", "MaterialClasses",
            "ResolvedScaler", "Separation",
-           "blur_test", "classify_by_ranges", "interface_labels", "learn_classes", "smeared_features",
+           "blur_test", "classify_by_ranges", "interface_labels", "learn_classes", "learn_spots", "smeared_features",
            "sphere_features"]
 
 FEATURES = ("L", "a", "b", "L_spread", "H", "S", "V",
-            "highlight", "highlight_area", "rim", "texture", "specular")
+            "highlight", "highlight_area", "rim", "texture", "specular", "highlight_at_spots")
 # the features the learned classes use: LAB colour and the gloss / shape cues
 # (not HSV: its hue wraps at red and is noise on grey spheres)
 LEARNED = (0, 1, 2, 3, 7, 8, 9, 10, 11)
+# The same with gloss read at the learned spots instead of as the disk's
+# brightest points. Both maxima take a speck of dust on the wall over a matte
+# sphere for a lamp's image on a glossy one; the lamps' images sit at the
+# same places on every sphere of a kind, a speck anywhere (:func:`learn_spots`).
+# Which of the two a run uses is decided by cross-validation on the first
+# frame's labelled spheres (:func:`learn_classes`).
+LEARNED_AT_SPOTS = (0, 1, 2, 3, 8, 9, 10, 12)
 # Labelled spheres lie this many diameters or more from the initial
 # interface: a packing's rows are not flat, and the interface (1 - c0) H is
 # where the layers' volumes split, not where every sphere does. When c0 is
@@ -78,10 +85,12 @@ _RIM = slice(1 + 6 + 10 + 14 + 18, None)
 # than this resolution.
 _N_SAMPLES = sum(n for _, n in _RINGS)
 RESOLUTION = {"L": 1.0, "a": 1.0, "b": 1.0, "L_spread": 1.0, "highlight": 1.0,
-              "highlight_area": 1.0 / _N_SAMPLES, "rim": 1.0, "texture": 1.0, "specular": 1.0}
+              "highlight_area": 1.0 / _N_SAMPLES, "rim": 1.0, "texture": 1.0, "specular": 1.0,
+              "highlight_at_spots": 1.0}
 
 
-def sphere_features(image: np.ndarray, centres: np.ndarray, particle_diameter_px: float) -> np.ndarray:
+def sphere_features(image: np.ndarray, centres: np.ndarray, particle_diameter_px: float,
+                    spots: np.ndarray | None = None) -> np.ndarray:
     """Appearance of each sphere, (m, len(FEATURES)).
 
     ``image`` is BGR (or grey) uint8, ``centres`` (m, 2) x, y [px]. Columns:
@@ -93,7 +102,9 @@ def sphere_features(image: np.ndarray, centres: np.ndarray, particle_diameter_px
     (median grey level at 0.86 radii minus the middle's); texture (mean absolute
     high-pass of the grey image over the middle, grey levels); specular (the
     largest rise of grey above its surroundings at a tenth of a diameter
-    within 0.86 radii: a sharp highlight, not a broad reflection).
+    within 0.86 radii: a sharp highlight, not a broad reflection);
+    highlight_at_spots (the same rise sampled over the disk and weighed by
+    ``spots``, the weights :func:`learn_spots` gives; 0 without them).
     """
     if len(centres) == 0:
         return np.zeros((0, len(FEATURES)))
@@ -126,11 +137,46 @@ def sphere_features(image: np.ndarray, centres: np.ndarray, particle_diameter_px
     # a lamp's image on a glossy sphere is small and sharp; the lamps'
     # reflections on the wall and the shading are broad: keep only what
     # stands above its surroundings at a tenth of a diameter
-    top_hat = cv2.dilate(gray - cv2.GaussianBlur(gray, (0, 0), max(1.0, d / 10)), np.ones((3, 3), np.uint8))
-    specular = cv2.remap(top_hat, px, py, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE).max(axis=1)
+    rises = _sharp_rises(gray, px, py, d)
+    specular = rises.max(axis=1)
+    at_spots = rises @ spots if spots is not None else np.zeros(len(centres))
     hue = _circular_median_hue(hsv[..., 0])
     sv = np.median(hsv[..., 1:], axis=1)
-    return np.column_stack([med, spread, hue, sv, highlight, area, rim, texture, specular])
+    return np.column_stack([med, spread, hue, sv, highlight, area, rim, texture, specular, at_spots])
+
+
+def _sharp_rises(gray: np.ndarray, px: np.ndarray, py: np.ndarray, d: float) -> np.ndarray:
+    """How far grey rises above its surroundings at a tenth of a diameter, at the disk's samples
+    (m, _N_SAMPLES); a 3 x 3 maximum first, so that a small highlight between samples counts."""
+    top_hat = cv2.dilate(gray - cv2.GaussianBlur(gray, (0, 0), max(1.0, d / 10)), np.ones((3, 3), np.uint8))
+    return cv2.remap(top_hat, px, py, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+
+
+def learn_spots(image: np.ndarray, centres: np.ndarray, particle_diameter_px: float,
+                height: np.ndarray, c0: float, n_layers: int) -> np.ndarray | None:
+    """Weights over the disk's samples that read gloss where the first frame's glossy spheres show it.
+
+    A lamp's image sits at the same place on every sphere of one kind; a
+    speck of dust or a scratch on the wall, anywhere. The weights are the
+    labelled heavy spheres' mean sharp rise (:func:`_sharp_rises`) minus the
+    light ones', over the two classes' pooled spread plus a grey level (so
+    that samples where neither rises weigh nothing), scaled to sum to one in
+    absolute value: a sphere's ``highlight_at_spots`` is then in grey levels.
+    None if the first frame has too few labelled spheres of a class.
+    """
+    if image.ndim == 3:
+        image = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
+    try:
+        label = _labels(np.asarray(height, dtype=float), c0, n_layers)
+    except ValueError:
+        return None
+    pts = _sample_points(np.asarray(centres, dtype=float), 0.5 * particle_diameter_px)
+    rises = _sharp_rises(image.astype(np.float32), pts[..., 0], pts[..., 1], particle_diameter_px)
+    heavy, light = rises[label == 1], rises[label == 0]
+    spread = np.sqrt(0.5 * (heavy.var(axis=0) + light.var(axis=0)))
+    w = (heavy.mean(axis=0) - light.mean(axis=0)) / (spread + 1.0)
+    total = np.abs(w).sum()
+    return w / total if total > 0 else None
 
 
 def _lab8(bgr: np.ndarray) -> np.ndarray:
@@ -225,12 +271,18 @@ class MaterialClasses:
     model: object  # a fitted scikit-learn pipeline
     separation: Separation
     blur: BlurTest | None = None
+    columns: tuple[int, ...] = LEARNED  # the FEATURES the model reads: LEARNED or LEARNED_AT_SPOTS
 
     def p_heavy(self, features: np.ndarray) -> np.ndarray:
         """Probability [0, 1] that each sphere (features (m, len(FEATURES))) is heavy."""
         if len(features) == 0:
             return np.zeros(0)
-        return self.model.predict_proba(np.asarray(features)[:, LEARNED])[:, 1]
+        return self.model.predict_proba(np.asarray(features)[:, self.columns])[:, 1]
+
+    @property
+    def gloss_at_spots(self) -> bool:
+        """Whether gloss is read at the learned spots (else as the disk's brightest points)."""
+        return self.columns == LEARNED_AT_SPOTS
 
 
 # Horizontal smears [diameters] the labelled spheres are also learned under.
@@ -257,14 +309,14 @@ BLUR_EVIDENCE = 100.0
 
 
 def smeared_features(image: np.ndarray, centres: np.ndarray, particle_diameter_px: float,
-                     smears: tuple[float, ...] = SMEARS) -> list[np.ndarray]:
+                     smears: tuple[float, ...] = SMEARS, spots: np.ndarray | None = None) -> list[np.ndarray]:
     """:func:`sphere_features` of ``image`` box-blurred along x by each of ``smears`` [diameters]."""
     out = []
     for smear in smears:
         k = max(1, int(round(smear * particle_diameter_px)))
         kernel = np.full((1, k), 1.0 / k, np.float32)
         blurred = cv2.filter2D(image, -1, kernel, borderType=cv2.BORDER_REPLICATE)
-        out.append(sphere_features(blurred, centres, particle_diameter_px))
+        out.append(sphere_features(blurred, centres, particle_diameter_px, spots))
     return out
 
 
@@ -301,40 +353,65 @@ def learn_classes(features: np.ndarray, height: np.ndarray, c0: float, n_layers:
     (e.g. :func:`smeared_features`), learned from as well. Raises ValueError
     if fewer than MIN_PER_CLASS spheres of either class lie clear of the
     interface.
+
+    Gloss is read either as the disk's brightest points (:data:`LEARNED`) or
+    at the learned spots (:data:`LEARNED_AT_SPOTS`, when ``features`` carry
+    them); the classes kept are those whose cross-validated log-loss on the
+    labelled spheres is lower. A speck of dust over a labelled sphere of
+    either kind shows up there, as a confident miss.
     """
-    x = np.asarray(features, dtype=float)[:, LEARNED]
     h = np.asarray(height, dtype=float)
+    label = _labels(h, c0, n_layers)
+    use = label >= 0
+    y, h = label[use], h[use]
+    n_heavy, n_light = int((y == 1).sum()), int((y == 0).sum())
+    spots = np.asarray(features, dtype=float)[:, FEATURES.index("highlight_at_spots")]
+    choices = [LEARNED, LEARNED_AT_SPOTS] if np.ptp(spots[use]) > 0 else [LEARNED]
+    tried = [(columns, *_fit_classes(features, augmented, use, y, columns, seed)) for columns in choices]
+    columns, model, _, accuracy = min(tried, key=lambda t: t[2])  # the lower log-loss
+    score = model.decision_function(np.asarray(features, dtype=float)[use][:, columns])
+    return MaterialClasses(model, Separation(accuracy, _height_share(score, y, h), n_heavy, n_light), columns=columns)
+
+
+def _labels(height: np.ndarray, c0: float, n_layers: int) -> np.ndarray:
+    """:func:`interface_labels` with the widest of MARGINS that leaves MIN_PER_CLASS spheres a class."""
     for margin in MARGINS:
-        label = interface_labels(h, c0, n_layers, margin)
+        label = interface_labels(height, c0, n_layers, margin)
         n_heavy, n_light = int((label == 1).sum()), int((label == 0).sum())
         if min(n_heavy, n_light) >= MIN_PER_CLASS:
-            break
-    else:
-        raise ValueError(
-            f"the first frame shows {n_heavy} spheres above and {n_light} below the initial interface "
-            f"at (1 - c0) H = {(1 - c0) * n_layers:.1f} diameters; need {MIN_PER_CLASS} of each to "
-            f"learn heavy from light (is c0 right? does the recording start stratified?)")
-    use = label >= 0
-    x, y, h = x[use], label[use], h[use]
-    views = [x, *(np.asarray(a, dtype=float)[:, LEARNED][use] for a in augmented)]
+            return label
+    raise ValueError(
+        f"the first frame shows {n_heavy} spheres above and {n_light} below the initial interface "
+        f"at (1 - c0) H = {(1 - c0) * n_layers:.1f} diameters; need {MIN_PER_CLASS} of each to "
+        f"learn heavy from light (is c0 right? does the recording start stratified?)")
+
+
+def _fit_classes(features, augmented, use: np.ndarray, y: np.ndarray, columns: tuple[int, ...],
+                 seed: int) -> tuple[object, float, float]:
+    """A classifier on ``columns`` of the labelled spheres (``use``, labels ``y``), its 5-fold
+    cross-validated log-loss [nats a sphere] and balanced accuracy."""
+    views = [np.asarray(v, dtype=float)[use][:, columns] for v in (features, *augmented)]
+    x = views[0]
 
     def fit(rows: np.ndarray):
         # Logistic regression: outliers (a shadowed sphere, a highlight off
         # centre) pull a linear boundary less than they pull a Gaussian class,
         # and its probabilities are usable as they come.
-        model = make_pipeline(ResolvedScaler([RESOLUTION[FEATURES[j]] for j in LEARNED]),
+        model = make_pipeline(ResolvedScaler([RESOLUTION[FEATURES[j]] for j in columns]),
                               LogisticRegression(C=1.0, max_iter=1000))
         return model.fit(np.concatenate([v[rows] for v in views]), np.tile(y[rows], len(views)))
 
     # cross-validated by sphere: a sphere's smeared copies stay in its fold
-    folds = StratifiedKFold(n_splits=min(5, n_heavy, n_light), shuffle=True, random_state=seed)
-    predicted = np.empty_like(y)
+    n_splits = min(5, int((y == 1).sum()), int((y == 0).sum()))
+    folds = StratifiedKFold(n_splits=n_splits, shuffle=True, random_state=seed)
+    p = np.empty(len(y))
     for train, test in folds.split(x, y):
-        predicted[test] = fit(train).predict(x[test])
-    accuracy = 0.5 * ((predicted[y == 1] == 1).mean() + (predicted[y == 0] == 0).mean())
-    fitted = fit(np.arange(len(y)))
-    score = fitted.decision_function(x)
-    return MaterialClasses(fitted, Separation(float(accuracy), _height_share(score, y, h), n_heavy, n_light))
+        p[test] = fit(train).predict_proba(x[test])[:, 1]
+    p = np.clip(p, 1e-12, 1 - 1e-12)
+    loss = float(-np.mean(np.where(y == 1, np.log(p), np.log1p(-p))))
+    predicted = p > 0.5
+    accuracy = 0.5 * (predicted[y == 1].mean() + (~predicted[y == 0]).mean())
+    return fit(np.arange(len(y))), loss, float(accuracy)
 
 
 class ResolvedScaler(StandardScaler):

@@ -25,6 +25,7 @@ from granseg.measure.classify import (
     blur_test,
     classify_by_ranges,
     learn_classes,
+    learn_spots,
     smeared_features,
     sphere_features,
 )
@@ -186,8 +187,8 @@ def analyze(
     keep = _preview_indices(len(source), preview_count if preview is not None else 2)
     if preview is not None:
         check_previews(Path(preview), [source.names[i] for i in sorted(keep) if i < len(source.names)], force)
-    spheres, crops, bad, names = _detect_all(source, exp, workers, progress, keep)
-    classes = _classify(spheres, exp, crops)
+    spheres, crops, bad, names, spots = _detect_all(source, exp, workers, progress, keep)
+    classes = _classify(spheres, exp, crops, spots)
     shift = _level_classes(spheres, exp)
     result = _assemble(spheres, exp, fps, smooth, names, bad)
     result.classes = classes
@@ -234,7 +235,7 @@ def detect_frames(path: str | os.PathLike, *, workers: int | None = None, progre
     source, exp_path = open_frames(path)
     exp = load_experiment(exp_path)
     fps = _frame_rate(exp, source)
-    spheres, _, bad, names = _detect_all(source, exp, workers, progress, set())
+    spheres, _, bad, names, _ = _detect_all(source, exp, workers, progress, set())
     return Detected(exp, fps, spheres, names, bad)
 
 
@@ -300,6 +301,7 @@ class _FrameWorker:
         self.exp, self.size = exp, image_size
         self.undistort = Undistorter(exp.camera_matrix, exp.dist_coeffs, image_size, self.crop)
         self.templates: Templates | None = None
+        self.spots: np.ndarray | None = None  # where glossy spheres show the lamps (classify.learn_spots)
         self.exposure = Exposure(0.0)  # none matched until surveyed
         if not self.undistort.inside_image(exp.window):
             raise ValueError(f"{exp.path}: field 'window': {list(exp.window)} is outside the image "
@@ -317,10 +319,18 @@ class _FrameWorker:
         self.exposure = survey(levels, reference)
 
     def learn(self, image: np.ndarray) -> None:
-        """Learn the spheres' appearances from one frame (kept None if it shows too few spheres)."""
+        """Learn the spheres' appearances from one frame (kept None if it shows too few spheres), then
+        where on them the glossy kind shows the lamps, from the same frame's spheres."""
         undistorted, _ = self.exposure.match(self.undistort(_bgr(image)), self.bed_rows)
         crop, _ = remove_wall_glare(undistorted, self.exp.particle_diameter_px, self.bed_rows)
         self.templates = learn_templates(crop, self.exp.particle_diameter_px, bands=self._material_bands())
+        try:
+            first, crop = self("the first frame", _bgr(image))
+        except BadFrame:
+            return  # reported when the frame is analysed
+        centres = np.column_stack([first.x - self.crop[0], first.y - self.crop[1]])
+        self.spots = learn_spots(crop, centres, self.exp.particle_diameter_px, height(first.y, self.exp.window),
+                                 self.exp.c0, N_LAYERS)
 
     def _material_bands(self) -> tuple[tuple[float, float], tuple[float, float]]:
         """Rows of the crop (top, bottom) holding only heavy spheres' centres and only light ones' in
@@ -350,7 +360,7 @@ class _FrameWorker:
         keep = inside & clear
         if not keep.any():
             raise BadFrame(f"{name}: no spheres detected in the window")
-        feats = sphere_features(crop, found[keep, :2], d)
+        feats = sphere_features(crop, found[keep, :2], d, self.spots)
         by_match = self.templates.by_match
         return FrameSpheres(x[keep], y[keep], found[keep, 2], found[keep, 3], feats, found[keep, 5],
                             wall=int((inside & ~clear).sum()), glare=glare, gain=gain,
@@ -419,7 +429,7 @@ def _detect_all(source, exp, workers, progress, keep):
             warnings.warn(f"{problem}; its map row is NaN", BadFrameWarning, stacklevel=3)
     if not any(s is not None for s in spheres):
         raise ValueError(f"{exp.path.parent}: no usable frame ({bad[0][1]})")
-    return spheres, crops, bad, names
+    return spheres, crops, bad, names, worker.spots
 
 
 def _first_image(source) -> tuple[int, np.ndarray]:
@@ -507,7 +517,7 @@ def _check_video_length(source, names, results) -> None:
 
 
 def _classify(spheres: list[FrameSpheres | None], exp: Experiment,
-              crops: dict[int, np.ndarray]) -> MaterialClasses | None:
+              crops: dict[int, np.ndarray], spots: np.ndarray | None) -> MaterialClasses | None:
     """Give every sphere its class: learned from the first good frame, or by explicit colour ranges."""
     good = [s for s in spheres if s is not None]
     if exp.colour_ranges:
@@ -519,7 +529,7 @@ def _classify(spheres: list[FrameSpheres | None], exp: Experiment,
     try:
         classes = learn_classes(first.features, height(first.y, exp.window), exp.c0, N_LAYERS)
         if i0 in crops:  # the first frame's image: its spheres also learned as if smeared by motion
-            classes = _smeared_if_blurred(classes, first, crops[i0], good, exp)
+            classes = _smeared_if_blurred(classes, first, crops[i0], good, exp, spots)
     except ValueError as exc:
         raise ValueError(f"{exp.path.parent}: {exc}") from None
     for s in good:
@@ -529,11 +539,12 @@ def _classify(spheres: list[FrameSpheres | None], exp: Experiment,
 
 
 def _smeared_if_blurred(sharp: MaterialClasses, first: FrameSpheres, crop: np.ndarray,
-                        good: list[FrameSpheres], exp: Experiment) -> MaterialClasses:
+                        good: list[FrameSpheres], exp: Experiment, spots: np.ndarray | None) -> MaterialClasses:
     """The classes learned from the first frame's spheres and their smeared copies too, if the run
     shows motion blur for them to undo (classify.blur_test); else ``sharp``, with the test kept."""
     ox, oy = exp.crop_origin()
-    augmented = smeared_features(crop, np.column_stack([first.x - ox, first.y - oy]), exp.particle_diameter_px)
+    augmented = smeared_features(crop, np.column_stack([first.x - ox, first.y - oy]), exp.particle_diameter_px,
+                                 spots=spots)
     smeared = learn_classes(first.features, height(first.y, exp.window), exp.c0, N_LAYERS, augmented)
     features = np.concatenate([s.features for s in good])
     test = blur_test(np.concatenate([height(s.y, exp.window) for s in good]),
@@ -571,6 +582,7 @@ def _assess(result: Analysis, shift: tuple[float, int] = (0.0, 0)) -> Quality:
         class_shift=shift,
         blur=result.classes.blur if learned else None,
         by_match=np.concatenate([np.zeros(len(s.x), bool) if s.by_match is None else s.by_match for s in good]),
+        gloss_at_spots=result.classes.gloss_at_spots if learned else None,
     )
 
 

@@ -172,7 +172,8 @@ def assess(*, n: np.ndarray, n_heavy: np.ndarray, c0: float, first_heights: np.n
            p_heavy: np.ndarray | None,
            separation: Any | None, n_bad_frames: int, wall_detections: float,
            wall_glare: float = 0.0, exposure_gain: tuple[float, float] = (1.0, 1.0),
-           exposure_matched: bool = False, class_shift: tuple[float, int] = (0.0, 0), blur: Any | None = None, by_match: np.ndarray | None = None) -> Quality:
+           exposure_matched: bool = False, class_shift: tuple[float, int] = (0.0, 0), blur: Any | None = None, by_match: np.ndarray | None = None,
+           gloss_at_spots: bool | None = None) -> Quality:
     """Run every check on one analysed run.
 
     n, n_heavy: (n_t, n_layers) counts (rows of bad frames all zero);
@@ -267,6 +268,8 @@ def assess(*, n: np.ndarray, n_heavy: np.ndarray, c0: float, first_heights: np.n
     }
     if separation is not None:
         figures.update(labelled_heavy=separation.n_heavy, labelled_light=separation.n_light)
+    if gloss_at_spots is not None:
+        figures["gloss_at_learned_spots"] = bool(gloss_at_spots)
     if by_match is not None and len(by_match):
         figures["placed_by_template_match"] = float(np.mean(by_match))
     if blur is not None:
