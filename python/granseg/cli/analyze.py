@@ -75,8 +75,8 @@ def run(args: argparse.Namespace) -> int:
         print(f"classes {kept}: of the {figures['blur_disagreements']} spheres the two sets of classes "
               f"class differently, {figures['blur_disagreements_near_plate']} lie within 3 diameters of the plate")
     if figures.get("gloss_at_learned_spots"):  # the first frame showed a speck lighting a maximum
-        print("gloss read at the spots where the first frame's glossy spheres show the lamps, not as each "
-              "sphere's brightest point (it told the first frame's labelled spheres apart better)")
+        print("gloss read where the first frame's glossy spheres show the lamps, not at each sphere's "
+              "brightest point (it told the first frame's spheres apart better)")
     if figures.get("placed_by_template_match"):  # a material learned from the other's matches
         print(f"{100 * figures['placed_by_template_match']:.0f} % of the spheres placed where their template "
               "matches best, not by their outline (mirror-like spheres, whose rim reflects their neighbours); "

@@ -24,9 +24,11 @@ from granseg.measure.classify import (
     MaterialClasses,
     blur_test,
     classify_by_ranges,
+    disk_rises,
     learn_classes,
     learn_spots,
     smeared_features,
+    smeared_rises,
     sphere_features,
 )
 from granseg.measure.detect import Templates, detect_particles, learn_templates
@@ -526,10 +528,15 @@ def _classify(spheres: list[FrameSpheres | None], exp: Experiment,
         return None
     i0 = next(i for i, s in enumerate(spheres) if s is not None)
     first = spheres[i0]
+    crop = crops.get(i0)  # the first frame's image, if kept
+    centres = np.column_stack([first.x, first.y]) - np.asarray(exp.crop_origin(), dtype=float)
+    d = exp.particle_diameter_px
+    # gloss at the learned spots is tried only where each fold can fit its own spot weights
+    rises = [disk_rises(crop, centres, d)] if crop is not None and spots is not None else None
     try:
-        classes = learn_classes(first.features, height(first.y, exp.window), exp.c0, N_LAYERS)
-        if i0 in crops:  # the first frame's image: its spheres also learned as if smeared by motion
-            classes = _smeared_if_blurred(classes, first, crops[i0], good, exp, spots)
+        classes = learn_classes(first.features, height(first.y, exp.window), exp.c0, N_LAYERS, rises=rises)
+        if crop is not None:  # the first frame's spheres also learned as if smeared by motion
+            classes = _smeared_if_blurred(classes, first, crop, centres, good, exp, spots, rises)
     except ValueError as exc:
         raise ValueError(f"{exp.path.parent}: {exc}") from None
     for s in good:
@@ -538,14 +545,16 @@ def _classify(spheres: list[FrameSpheres | None], exp: Experiment,
     return classes
 
 
-def _smeared_if_blurred(sharp: MaterialClasses, first: FrameSpheres, crop: np.ndarray,
-                        good: list[FrameSpheres], exp: Experiment, spots: np.ndarray | None) -> MaterialClasses:
+def _smeared_if_blurred(sharp: MaterialClasses, first: FrameSpheres, crop: np.ndarray, centres: np.ndarray,
+                        good: list[FrameSpheres], exp: Experiment, spots: np.ndarray | None,
+                        rises: list[np.ndarray] | None) -> MaterialClasses:
     """The classes learned from the first frame's spheres and their smeared copies too, if the run
     shows motion blur for them to undo (classify.blur_test); else ``sharp``, with the test kept."""
-    ox, oy = exp.crop_origin()
-    augmented = smeared_features(crop, np.column_stack([first.x - ox, first.y - oy]), exp.particle_diameter_px,
-                                 spots=spots)
-    smeared = learn_classes(first.features, height(first.y, exp.window), exp.c0, N_LAYERS, augmented)
+    d = exp.particle_diameter_px
+    augmented = smeared_features(crop, centres, d, spots=spots)
+    if rises is not None:
+        rises = rises + smeared_rises(crop, centres, d)
+    smeared = learn_classes(first.features, height(first.y, exp.window), exp.c0, N_LAYERS, augmented, rises=rises)
     features = np.concatenate([s.features for s in good])
     test = blur_test(np.concatenate([height(s.y, exp.window) for s in good]),
                      sharp.p_heavy(features) > 0.5, smeared.p_heavy(features) > 0.5)
