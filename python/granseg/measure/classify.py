@@ -17,6 +17,9 @@ lightness, the strength and size of its specular highlight, how much its rim
 darkens, and the fine texture of its surface; the median HSV colour is kept
 for explicit colour ranges. Polished steel and dark-grey POM, which differ
 in brightness and gloss but hardly in hue, separate on these (issue 9).
+Gloss is also read where the first frame's glossy spheres show the lamps
+(:func:`learn_spots`), which a speck of dust on the wall does not mimic; the
+first frame's cross-validation decides which reading a run keeps.
 
 Because the classes are learned, they can also be *checked*
 (:class:`Separation`): how well the labelled spheres are told apart under
