@@ -134,6 +134,9 @@ def test_cli_strict_exit_and_detections_csv(tmp_path, capsys):
                  "--detections", str(det)]) == 0
     out = capsys.readouterr().out
     assert "quality: ok" in out and "initial_heavy_share" in out
+    # which reading of gloss the run kept is in the map and said when it is the learned spots
+    spots = Quality.from_json(str(load_map(good / "map.npz").quality)).figures["gloss_at_learned_spots"]
+    assert isinstance(spots, bool) and spots == ("gloss read where the first frame's glossy spheres" in out)
     with open(det, newline="") as f:
         rows = list(csv.DictReader(f))
     assert list(rows[0]) == ["frame", "x", "y", "r", "class", "p_heavy", "layer"]
