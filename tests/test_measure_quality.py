@@ -303,6 +303,19 @@ def test_spot_weights_are_fitted_per_fold_so_noise_does_not_look_separable():
     assert np.mean(nested) < 0.6 < 0.65 < np.mean(leaky), (nested, leaky)
 
 
+def test_each_frame_is_detected_once(tmp_path, monkeypatch):
+    """The first frame's spheres, found while learning the templates and the spots, are the run's
+    first row: no frame is searched twice."""
+    import granseg.measure.pipeline as pipeline
+
+    calls = []
+    detect = pipeline.detect_particles
+    monkeypatch.setattr(pipeline, "detect_particles", lambda *a, **k: calls.append(1) or detect(*a, **k))
+    render_frames(stratified_map(4, 0.5), seed=4, out_dir=tmp_path, heavy="glass", light="pp", **SMALL)
+    a = analyze(tmp_path, smooth=1, save=False, progress=False, workers=2)
+    assert len(calls) == len(a.spheres) == 4
+
+
 def test_polished_steel_over_pom_in_mpeg4_keeps_its_classes(tmp_path):
     """The same failure end to end: S-POM-25 written as MPEG-4 video. Before the resolution
     floor, 1-7 POM spheres a frame rising among the steel were called steel and the map was off

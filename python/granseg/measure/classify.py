@@ -46,8 +46,7 @@ from sklearn.preprocessing import StandardScaler
 
 __all__ = ["BLUR_ZONE", "FEATURES", "MARGIN", "MARGINS", "RESOLUTION", "SMEARS", "BlurTest", "MaterialClasses",
            "ResolvedScaler", "Separation",
-           "blur_test", "classify_by_ranges", "interface_labels", "disk_rises", "learn_classes", "learn_spots", "smeared_features", "smeared_rises",
-           "spot_weights",
+           "blur_test", "classify_by_ranges", "interface_labels", "disk_rises", "learn_classes", "learn_spots", "smeared_images", "spot_weights",
            "sphere_features"]
 
 FEATURES = ("L", "a", "b", "L_spread", "H", "S", "V",
@@ -324,24 +323,15 @@ BLUR_NEAR_PLATE = 0.8  # least share of disagreements near the plate on the blur
 BLUR_EVIDENCE = 100.0
 
 
-def smeared_features(image: np.ndarray, centres: np.ndarray, particle_diameter_px: float,
-                     smears: tuple[float, ...] = SMEARS, spots: np.ndarray | None = None) -> list[np.ndarray]:
-    """:func:`sphere_features` of ``image`` box-blurred along x by each of ``smears`` [diameters]."""
-    return [sphere_features(_smeared(image, particle_diameter_px, smear), centres, particle_diameter_px, spots)
-            for smear in smears]
-
-
-def smeared_rises(image: np.ndarray, centres: np.ndarray, particle_diameter_px: float,
-                  smears: tuple[float, ...] = SMEARS) -> list[np.ndarray]:
-    """:func:`disk_rises` of ``image`` smeared as :func:`smeared_features` smears it."""
-    return [disk_rises(_smeared(image, particle_diameter_px, smear), centres, particle_diameter_px)
-            for smear in smears]
-
-
-def _smeared(image: np.ndarray, particle_diameter_px: float, smear: float) -> np.ndarray:
-    k = max(1, int(round(smear * particle_diameter_px)))
-    kernel = np.full((1, k), 1.0 / k, np.float32)
-    return cv2.filter2D(image, -1, kernel, borderType=cv2.BORDER_REPLICATE)
+def smeared_images(image: np.ndarray, particle_diameter_px: float,
+                   smears: tuple[float, ...] = SMEARS) -> list[np.ndarray]:
+    """``image`` box-blurred along x by each of ``smears`` [diameters], as the moving plate smears."""
+    out = []
+    for smear in smears:
+        k = max(1, int(round(smear * particle_diameter_px)))
+        kernel = np.full((1, k), 1.0 / k, np.float32)
+        out.append(cv2.filter2D(image, -1, kernel, borderType=cv2.BORDER_REPLICATE))
+    return out
 
 
 def blur_test(height: np.ndarray, sharp_heavy: np.ndarray, smeared_heavy: np.ndarray) -> BlurTest:
@@ -375,7 +365,7 @@ def learn_classes(features: np.ndarray, height: np.ndarray, c0: float, n_layers:
     ``features`` (m, len(FEATURES)) and ``height`` [diameters above the bottom
     wall] of the first frame's spheres; ``c0`` the heavy volume fraction;
     ``augmented``: the same spheres' features under other imaging conditions
-    (e.g. :func:`smeared_features`), learned from as well. Raises ValueError
+    (e.g. :func:`sphere_features` of :func:`smeared_images`), learned from as well. Raises ValueError
     if fewer than MIN_PER_CLASS spheres of either class lie clear of the
     interface.
 

@@ -27,8 +27,7 @@ from granseg.measure.classify import (
     disk_rises,
     learn_classes,
     learn_spots,
-    smeared_features,
-    smeared_rises,
+    smeared_images,
     sphere_features,
 )
 from granseg.measure.detect import Templates, detect_particles, learn_templates
@@ -304,6 +303,7 @@ class _FrameWorker:
         self.undistort = Undistorter(exp.camera_matrix, exp.dist_coeffs, image_size, self.crop)
         self.templates: Templates | None = None
         self.spots: np.ndarray | None = None  # where glossy spheres show the lamps (classify.learn_spots)
+        self.first: tuple[FrameSpheres, np.ndarray] | None = None  # the first frame's spheres and crop
         self.exposure = Exposure(0.0)  # none matched until surveyed
         if not self.undistort.inside_image(exp.window):
             raise ValueError(f"{exp.path}: field 'window': {list(exp.window)} is outside the image "
@@ -321,18 +321,20 @@ class _FrameWorker:
         self.exposure = survey(levels, reference)
 
     def learn(self, image: np.ndarray) -> None:
-        """Learn the spheres' appearances from one frame (kept None if it shows too few spheres), then
-        where on them the glossy kind shows the lamps, from the same frame's spheres."""
-        undistorted, _ = self.exposure.match(self.undistort(_bgr(image)), self.bed_rows)
-        crop, _ = remove_wall_glare(undistorted, self.exp.particle_diameter_px, self.bed_rows)
-        self.templates = learn_templates(crop, self.exp.particle_diameter_px, bands=self._material_bands())
+        """Learn the spheres' appearances from the first frame (kept None if it shows too few
+        spheres), then where on them the glossy kind shows the lamps. The first frame's spheres,
+        found on the way, are kept in ``first`` (with their crop) for the run, not found again."""
+        d = self.exp.particle_diameter_px
+        crop, glare, gain = self._crop(_bgr(image))
+        self.templates = learn_templates(crop, d, bands=self._material_bands())
         try:
-            first, crop = self("the first frame", _bgr(image))
+            first = self._spheres("the first frame", crop, glare, gain)
         except BadFrame:
             return  # reported when the frame is analysed
         centres = np.column_stack([first.x - self.crop[0], first.y - self.crop[1]])
-        self.spots = learn_spots(crop, centres, self.exp.particle_diameter_px, height(first.y, self.exp.window),
-                                 self.exp.c0, N_LAYERS)
+        self.spots = learn_spots(crop, centres, d, height(first.y, self.exp.window), self.exp.c0, N_LAYERS)
+        first.features = sphere_features(crop, centres, d, self.spots)
+        self.first = (first, crop)
 
     def _material_bands(self) -> tuple[tuple[float, float], tuple[float, float]]:
         """Rows of the crop (top, bottom) holding only heavy spheres' centres and only light ones' in
@@ -350,9 +352,18 @@ class _FrameWorker:
         if (image.shape[1], image.shape[0]) != self.size:
             raise BadFrame(f"{name}: size {image.shape[1]} x {image.shape[0]} differs from the first frame's "
                            f"{self.size[0]} x {self.size[1]}")
-        d = self.exp.particle_diameter_px
+        crop, glare, gain = self._crop(image)
+        return self._spheres(name, crop, glare, gain), crop
+
+    def _crop(self, image: np.ndarray) -> tuple[np.ndarray, float, float]:
+        """The frame undistorted, cropped, matched to the first frame's exposure and rid of the
+        wall's glare; the glare taken off [grey levels] and the exposure gain."""
         undistorted, gain = self.exposure.match(self.undistort(image), self.bed_rows)
-        crop, glare = remove_wall_glare(undistorted, d, self.bed_rows)
+        crop, glare = remove_wall_glare(undistorted, self.exp.particle_diameter_px, self.bed_rows)
+        return crop, glare, gain
+
+    def _spheres(self, name: str, crop: np.ndarray, glare: float, gain: float) -> FrameSpheres:
+        d = self.exp.particle_diameter_px
         found = detect_particles(crop, d, templates=self.templates, details=True)
         x, y = found[:, 0] + self.crop[0], found[:, 1] + self.crop[1]
         inside = in_window(x, y, self.exp.window)
@@ -367,7 +378,7 @@ class _FrameWorker:
         return FrameSpheres(x[keep], y[keep], found[keep, 2], found[keep, 3], feats, found[keep, 5],
                             wall=int((inside & ~clear).sum()), glare=glare, gain=gain,
                             gain_taken_off=self.exposure.drifting,
-                            by_match=None if by_match is None else by_match[found[keep, 4].astype(int)]), crop
+                            by_match=None if by_match is None else by_match[found[keep, 4].astype(int)])
 
 
 def _in_thread(source, worker, i: int, image: np.ndarray | None, keep_crop: bool):
@@ -402,6 +413,9 @@ def _detect_all(source, exp, workers, progress, keep):
     pending: deque[tuple[int, Future]] = deque()
     try:
         for i, image in source.frames():
+            if i == first_index and worker.first is not None:  # found while learning
+                _store(i, (worker.first[0], worker.first[1] if i in keep else None), results, crops, bar)
+                continue
             if pool is None:
                 got = _one_frame(source, worker, i, image)
                 _store(i, got if isinstance(got, BadFrame) else (got[0], got[1] if i in keep else None),
@@ -551,9 +565,10 @@ def _smeared_if_blurred(sharp: MaterialClasses, first: FrameSpheres, crop: np.nd
     """The classes learned from the first frame's spheres and their smeared copies too, if the run
     shows motion blur for them to undo (classify.blur_test); else ``sharp``, with the test kept."""
     d = exp.particle_diameter_px
-    augmented = smeared_features(crop, centres, d, spots=spots)
+    blurred = smeared_images(crop, d)
+    augmented = [sphere_features(image, centres, d, spots) for image in blurred]
     if rises is not None:
-        rises = rises + smeared_rises(crop, centres, d)
+        rises = rises + [disk_rises(image, centres, d) for image in blurred]
     smeared = learn_classes(first.features, height(first.y, exp.window), exp.c0, N_LAYERS, augmented, rises=rises)
     features = np.concatenate([s.features for s in good])
     test = blur_test(np.concatenate([height(s.y, exp.window) for s in good]),
