@@ -316,6 +316,26 @@ def test_each_frame_is_detected_once(tmp_path, monkeypatch):
     assert len(calls) == len(a.spheres) == 4
 
 
+def test_detect_frames_finds_what_analyze_finds_without_describing_the_spheres(tmp_path, monkeypatch):
+    """The velocity tracking's detection (detect_frames) places the same spheres as analyze, but
+    measures no appearance and learns no spots: it never tells the kinds apart."""
+    import granseg.measure.pipeline as pipeline
+
+    render_frames(stratified_map(3, 0.5), seed=5, out_dir=tmp_path, heavy="steel", light="pp", **SMALL)
+    a = analyze(tmp_path, smooth=1, save=False, progress=False, workers=1)
+    described = []
+    features = pipeline.sphere_features
+    monkeypatch.setattr(pipeline, "sphere_features", lambda *a, **k: described.append(1) or features(*a, **k))
+    monkeypatch.setattr(pipeline, "learn_spots", lambda *a, **k: pytest.fail("spots learned for velocity"))
+    det = pipeline.detect_frames(tmp_path, workers=1, progress=False)
+    assert described == []
+    shift = abs(a.quality.figures["class_shift_px"])  # analyze takes the classes' relative shift off y
+    for s, t in zip(a.spheres, det.spheres, strict=True):
+        np.testing.assert_allclose(t.x, s.x, atol=1e-9)
+        np.testing.assert_allclose(t.y, s.y, atol=shift + 1e-9)
+        assert t.features.shape == (len(t.x), 0)
+
+
 def test_polished_steel_over_pom_in_mpeg4_keeps_its_classes(tmp_path):
     """The same failure end to end: S-POM-25 written as MPEG-4 video. Before the resolution
     floor, 1-7 POM spheres a frame rising among the steel were called steel and the map was off

@@ -66,7 +66,7 @@ class FrameSpheres:
     """Spheres found in one frame's window.
 
     x, y, r: centre and radius [undistorted px]; score: correlation with the
-    template; features: appearance (classify.FEATURES); heavy, p_heavy: the
+    template; features: appearance (classify.FEATURES; (m, 0) from detect_frames); heavy, p_heavy: the
     class and its probability (p_heavy None with explicit colour ranges);
     wall: detections left out as hemispheres of the lid or plate (count);
     glare: the most light the wall's reflections added [grey levels], taken off;
@@ -236,7 +236,7 @@ def detect_frames(path: str | os.PathLike, *, workers: int | None = None, progre
     source, exp_path = open_frames(path)
     exp = load_experiment(exp_path)
     fps = _frame_rate(exp, source)
-    spheres, _, bad, names, _ = _detect_all(source, exp, workers, progress, set())
+    spheres, _, bad, names, _ = _detect_all(source, exp, workers, progress, set(), describe=False)
     return Detected(exp, fps, spheres, names, bad)
 
 
@@ -291,15 +291,18 @@ class _FrameWorker:
     """Undistort, crop, detect and describe the spheres of one frame.
 
     ``templates`` are the spheres' appearances, learned once per run (from the
-    first readable frame) and only matched afterwards.
+    first readable frame) and only matched afterwards. ``describe``: also
+    measure each sphere's appearance (classify.FEATURES) and learn where the
+    glossy kind shows the lamps, which only telling the kinds apart needs;
+    without it (the velocity tracking) ``features`` are (m, 0).
     """
 
-    def __init__(self, exp: Experiment, image_size: tuple[int, int]):
+    def __init__(self, exp: Experiment, image_size: tuple[int, int], describe: bool = True):
         x0, y0, x1, y1 = exp.window
         m = int(np.ceil(exp.particle_diameter_px))
         self.crop = (*exp.crop_origin(), int(np.ceil(x1)) + m, int(np.ceil(y1)) + m)
         self.bed_rows = (int(np.ceil(y0)) - self.crop[1], int(np.floor(y1)) - self.crop[1])  # in the crop
-        self.exp, self.size = exp, image_size
+        self.exp, self.size, self.describe = exp, image_size, describe
         self.undistort = Undistorter(exp.camera_matrix, exp.dist_coeffs, image_size, self.crop)
         self.templates: Templates | None = None
         self.spots: np.ndarray | None = None  # where glossy spheres show the lamps (classify.learn_spots)
@@ -331,9 +334,10 @@ class _FrameWorker:
             first = self._spheres("the first frame", crop, glare, gain)
         except BadFrame:
             return  # reported when the frame is analysed
-        centres = np.column_stack([first.x - self.crop[0], first.y - self.crop[1]])
-        self.spots = learn_spots(crop, centres, d, height(first.y, self.exp.window), self.exp.c0, N_LAYERS)
-        first.features = sphere_features(crop, centres, d, self.spots)
+        if self.describe:
+            centres = np.column_stack([first.x - self.crop[0], first.y - self.crop[1]])
+            self.spots = learn_spots(crop, centres, d, height(first.y, self.exp.window), self.exp.c0, N_LAYERS)
+            first.features = sphere_features(crop, centres, d, self.spots)
         self.first = (first, crop)
 
     def _material_bands(self) -> tuple[tuple[float, float], tuple[float, float]]:
@@ -373,7 +377,7 @@ class _FrameWorker:
         keep = inside & clear
         if not keep.any():
             raise BadFrame(f"{name}: no spheres detected in the window")
-        feats = sphere_features(crop, found[keep, :2], d, self.spots)
+        feats = sphere_features(crop, found[keep, :2], d, self.spots) if self.describe else np.zeros((keep.sum(), 0))
         by_match = self.templates.by_match
         return FrameSpheres(x[keep], y[keep], found[keep, 2], found[keep, 3], feats, found[keep, 5],
                             wall=int((inside & ~clear).sum()), glare=glare, gain=gain,
@@ -388,12 +392,12 @@ def _in_thread(source, worker, i: int, image: np.ndarray | None, keep_crop: bool
     return got[0], (got[1] if keep_crop else None)
 
 
-def _detect_all(source, exp, workers, progress, keep):
+def _detect_all(source, exp, workers, progress, keep, describe=True):
     n_workers = max(1, workers or os.cpu_count() or 1)
     first_index, first = _first_image(source)
     _warn_if_grey(first, source, first_index)
     try:
-        worker = _FrameWorker(exp, (first.shape[1], first.shape[0]))
+        worker = _FrameWorker(exp, (first.shape[1], first.shape[0]), describe)
     except ValueError:
         _check_same_size(source, first_index, first)  # a stray first frame, not the window, is to blame
         raise
