@@ -331,10 +331,10 @@ class _FrameWorker:
         crop, glare, gain = self._crop(_bgr(image))
         self.templates = learn_templates(crop, d, bands=self._material_bands())
         try:
-            first = self._spheres("the first frame", crop, glare, gain)
+            first = self._spheres("the first frame", crop, glare, gain, describe=False)  # described below
         except BadFrame:
             return  # reported when the frame is analysed
-        if self.describe:
+        if self.describe:  # once the spots are known
             centres = np.column_stack([first.x - self.crop[0], first.y - self.crop[1]])
             self.spots = learn_spots(crop, centres, d, height(first.y, self.exp.window), self.exp.c0, N_LAYERS)
             first.features = sphere_features(crop, centres, d, self.spots)
@@ -366,8 +366,11 @@ class _FrameWorker:
         crop, glare = remove_wall_glare(undistorted, self.exp.particle_diameter_px, self.bed_rows)
         return crop, glare, gain
 
-    def _spheres(self, name: str, crop: np.ndarray, glare: float, gain: float) -> FrameSpheres:
+    def _spheres(self, name: str, crop: np.ndarray, glare: float, gain: float,
+                 describe: bool | None = None) -> FrameSpheres:
+        """The spheres of one prepared frame; their features if ``describe`` (default: the worker's)."""
         d = self.exp.particle_diameter_px
+        describe = self.describe if describe is None else describe
         found = detect_particles(crop, d, templates=self.templates, details=True)
         x, y = found[:, 0] + self.crop[0], found[:, 1] + self.crop[1]
         inside = in_window(x, y, self.exp.window)
@@ -377,7 +380,7 @@ class _FrameWorker:
         keep = inside & clear
         if not keep.any():
             raise BadFrame(f"{name}: no spheres detected in the window")
-        feats = sphere_features(crop, found[keep, :2], d, self.spots) if self.describe else np.zeros((keep.sum(), 0))
+        feats = sphere_features(crop, found[keep, :2], d, self.spots) if describe else np.zeros((keep.sum(), 0))
         by_match = self.templates.by_match
         return FrameSpheres(x[keep], y[keep], found[keep, 2], found[keep, 3], feats, found[keep, 5],
                             wall=int((inside & ~clear).sum()), glare=glare, gain=gain,
