@@ -65,6 +65,10 @@ MISSED = {
     "ceramic-glass": "transparent glass: centres do not settle on its outline (flagged)",
     "ceramic-pom": "centres found 1.4 px outward near the window's sides under the side lamps: counts 3.4 % "
                    "(not flagged)",
+    # one panel straight behind the camera instead of the two side panels: the
+    # wall mirrors it in a bright band down the middle of the window, and the
+    # spheres under the band are missed
+    "pom-pp-front": "spheres under the lamp's reflection are missed: counts 6.4 % (flagged: vacancies)",
 }
 SILENT = ("pom-pp", "ceramic-pom")
 
@@ -109,6 +113,17 @@ def test_spheres_placed_by_their_template_are_reported(tmp_path, capsys):
     assert 0.3 < quality.figures["placed_by_template_match"] < 0.7, quality.figures  # steel: c0 = 0.5
     assert "centres_settled" in [c.name for c in quality.failed]
     assert _measured("ceramic-pp")[0].quality.figures["placed_by_template_match"] == 0.0
+
+
+def test_spheres_missed_under_a_lamp_behind_the_camera_are_flagged():
+    """Under a lamp straight behind the camera, the spheres under its reflection on the wall are
+    missed, and the packed bed shows the holes they leave (quality check vacancies, its limit set on
+    the 2-D tuning seeds, the tuning packings and two-frame lighting controls); the same pair under the
+    side panels, whose spheres are found, passes it."""
+    a, _, count = _measured("pom-pp-front")
+    assert "vacancies" in [c.name for c in a.quality.failed] and count > 0.03, a.quality.report()
+    for look in ("pom-pp", "ceramic-pp", "ceramic-pom"):
+        assert "vacancies" not in [c.name for c in _measured(look)[0].quality.failed], look
 
 
 def test_every_look_is_here():

@@ -31,7 +31,7 @@ from granseg.measure.classify import (
     spot_weights,
 )
 from granseg.measure.exposure import DRIFT_LIMIT
-from granseg.measure.quality import Quality, assess
+from granseg.measure.quality import VACANCY_GAP, Quality, assess, vacancies
 from granseg.synth import render_frames
 from granseg.synth.scenes import render_scene
 
@@ -102,6 +102,60 @@ def test_consistency_checks_catch_a_wrong_class_assignment():
     assert "first_frame_order" in swapped
     all_heavy = {c.name for c in _first_frame_checks(lambda truth: np.ones_like(truth)).failed}
     assert {"initial_heavy_share", "first_frame_order", "heavy_share_conserved"} <= all_heavy
+
+
+def _packed(lattice: str, d: float, window) -> np.ndarray:
+    """Centres (m, 2) of touching spheres of diameter d filling the window, rows of a hexagonal or a
+    square lattice."""
+    x0, y0, x1, y1 = window
+    pitch = d * np.sqrt(3) / 2 if lattice == "hexagonal" else d
+    rows = np.arange(y0 + d / 2, y1, pitch)
+    out = [np.column_stack([np.arange(x0 - d, x1 + d, d) + (d / 2 if lattice == "hexagonal" and k % 2 else 0),
+                            np.full(len(np.arange(x0 - d, x1 + d, d)), y)]) for k, y in enumerate(rows)]
+    return np.concatenate(out)
+
+
+@pytest.mark.parametrize("lattice", ["hexagonal", "square"])
+def test_a_packed_bed_has_no_vacancies(lattice):
+    """No room for a sphere between touching spheres, not even in a square lattice's gaps (0.41 d)."""
+    d, window = 30.0, (100.0, 50.0, 400.0, 500.0)
+    centres = _packed(lattice, d, window)
+    holes, searched = vacancies(centres[:, 0], centres[:, 1], window, d)
+    assert len(holes) == 0 and searched > 100
+
+
+def test_vacancies_are_the_spheres_taken_out_of_a_packed_bed():
+    """Taking spheres out of a hexagonal packing, one alone and three side by side, leaves one vacancy
+    each, where they were."""
+    d, window = 30.0, (100.0, 50.0, 400.0, 500.0)
+    centres = _packed("hexagonal", d, window)
+    order = np.argsort(np.hypot(*(centres - np.array([250.0, 275.0])).T))
+    row = np.flatnonzero((np.abs(centres[:, 1] - centres[order[40], 1]) < 1) & (centres[:, 0] > 150))[:3]
+    out = np.r_[order[0], row]
+    kept = np.delete(centres, out, axis=0)
+    holes, _ = vacancies(kept[:, 0], kept[:, 1], window, d)
+    assert len(holes) == 4
+    dist = np.hypot(*(holes[:, None, :] - centres[out][None]).transpose(2, 0, 1))
+    assert dist.min(axis=1).max() < (1 - VACANCY_GAP) * d + 3.0  # each vacancy where a sphere was taken out
+
+
+def test_spheres_missed_are_flagged_as_vacancies():
+    """The check fails once a run misses more than one sphere in twenty."""
+    def quality(vacant):
+        return _first_frame_checks_with(vacant)
+    assert quality((2, 400)).ok
+    assert [c.name for c in quality((40, 400)).failed] == ["vacancies"]
+
+
+def _first_frame_checks_with(vacant):
+    rng = np.random.default_rng(0)
+    h = rng.uniform(0.5, 14.5, 140)
+    heavy = h > 7.5
+    layer = np.floor(h).astype(int)
+    n = np.tile(np.bincount(layer, minlength=15), (3, 1))
+    nh = np.tile(np.bincount(layer[heavy], minlength=15), (3, 1))
+    return assess(n=n, n_heavy=nh, c0=0.5, first_heights=h, first_heavy=heavy, scores=np.full(140, 0.9),
+                  p_heavy=None, separation=None, n_bad_frames=0, wall_detections=0.0, vacant=vacant)
 
 
 def test_quality_is_stored_in_the_map_and_refused_downstream(tmp_path):

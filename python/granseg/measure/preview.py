@@ -11,7 +11,7 @@ import numpy as np
 from granseg._io import atomic_path, cv2_path
 from granseg.measure.classify import AMBIGUOUS
 from granseg.measure.layers import N_LAYERS
-from granseg.measure.quality import SETTLE_PX
+from granseg.measure.quality import SETTLE_PX, vacancies
 
 __all__ = ["check_previews", "draw_preview", "preview_path", "write_previews"]
 
@@ -81,6 +81,12 @@ def draw_preview(crop: np.ndarray, result: Any, i: int) -> np.ndarray:
             cv2.drawMarker(img, to_px(x, y), FAIL_BGR, cv2.MARKER_TILTED_CROSS, 9, 2, cv2.LINE_AA)
         else:
             cv2.circle(img, to_px(x, y), 2, colour, -1, cv2.LINE_AA)
+    holes, _ = vacancies(s.x, s.y, exp.window, exp.particle_diameter_px)
+    for x, y in holes:  # room for a sphere between those found (quality check vacancies)
+        cv2.circle(img, to_px(x, y), int(round(0.5 * exp.particle_diameter_px * scale * 0.92)), FAIL_BGR, 1,
+                   cv2.LINE_AA)
+        cv2.putText(img, "?", (to_px(x, y)[0] - 5, to_px(x, y)[1] + 6), cv2.FONT_HERSHEY_SIMPLEX, 0.5, FAIL_BGR, 1,
+                    cv2.LINE_AA)
     body = np.hstack([img, _panel(img.shape[0], result, i, to_px(0, y0)[1], to_px(0, y1)[1])])
     return np.vstack([_header(body.shape[1], result, i), body])
 
@@ -99,7 +105,9 @@ def _header(width: int, result: Any, i: int) -> np.ndarray:
     cv2.putText(band, "ambiguous", (130, 44), font, 0.45, AMBIGUOUS_BGR, 2, cv2.LINE_AA)
     cv2.drawMarker(band, (236, 40), FAIL_BGR, cv2.MARKER_TILTED_CROSS, 9, 2, cv2.LINE_AA)
     cv2.putText(band, "unsettled", (246, 44), font, 0.45, FAIL_BGR, 1, cv2.LINE_AA)
-    cv2.putText(band, f"{result.experiment.heavy} / {result.experiment.light}", (340, 44), font, 0.45, dark,
+    cv2.circle(band, (336, 40), 7, FAIL_BGR, 1, cv2.LINE_AA)
+    cv2.putText(band, "vacancy", (348, 44), font, 0.45, FAIL_BGR, 1, cv2.LINE_AA)
+    cv2.putText(band, f"{result.experiment.heavy} / {result.experiment.light}", (425, 44), font, 0.45, dark,
                 1, cv2.LINE_AA)
     if failed:
         text = "QUALITY FAILED: " + ", ".join(c.name for c in q.failed)

@@ -15,10 +15,11 @@ The checks lean on what every run must show:
 - the first frame is stratified: its depth-mean heavy share is c0, and the
   spheres below the initial interface are light, those above heavy (a map
   made with the classes swapped fails here);
-- detections are confident and stable: the spheres match their template
-  well, their centres have settled on outlines (the outline fit's last
-  step is small), the count of each layer and of each frame stays steady,
-  few frames are bad;
+- detections are confident, complete and stable: the spheres match their
+  template well, no room for a sphere is left between those found (a packed
+  bed has none), their centres have settled on outlines (the outline fit's
+  last step is small), the count of each layer and of each frame stays
+  steady, few frames are bad;
 - the heavy share summed over depth is conserved: the run's last frames show
   c0 as the first did, within the counting noise.
 
@@ -48,11 +49,13 @@ from dataclasses import asdict, dataclass
 from typing import Any
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from granseg.errors import QualityWarning
 from granseg.measure.classify import AMBIGUOUS, MARGIN, interface_labels
 
-__all__ = ["Check", "Quality", "QualityWarning", "assess", "depth_mean_check", "window_check_of", "views_table"]
+__all__ = ["Check", "Quality", "QualityWarning", "assess", "depth_mean_check", "vacancies", "views_table",
+           "window_check_of"]
 
 VERSION = 1
 # A centre the outline fit still moves in its last iteration has not settled
@@ -64,6 +67,23 @@ VERSION = 1
 # those that miss them 0.43 (steel-pom, counts 5.5 % off) and 0.8-1.0 (glass
 # among POM or PP, mirror steel over PP: counts 8-21 % off).
 SETTLE_PX = 0.4
+# A packed bed of one sphere size leaves no room for another sphere between
+# its spheres: the widest gap between touching spheres holds a disk of 0.41 d
+# (four spheres in a square; 0.15 d among three). A place farther than
+# VACANCY_GAP diameters from every centre found would hold a disk of 0.7 d: a
+# sphere missed, or a hole the packing really has. Looked for VACANCY_INSET_SIDES
+# diameters inside the window's sides (spheres just outside it are not in the
+# frame's list) and VACANCY_INSET_WALLS from lid and plate (the bumps' hollows).
+VACANCY_GAP = 0.85
+VACANCY_INSET_SIDES = 0.6
+VACANCY_INSET_WALLS = 1.0
+# Vacancies per sphere found, on the tuning looks: every 2-D scene of seeds 7-8
+# 0-0.021 (its packings have a few holes of their own), the physically based
+# packings of seed offset 100 0-0.012, two-frame lighting controls 0.005-0.025
+# where the spheres are found; pom-pp lit from straight behind the camera, its
+# lamp mirrored by the wall over the spheres, 0.087 (7 % missed) and 0.17 (12 %)
+# (BENCHMARKS.md, "Spheres missed where the bed has no room for a gap").
+VACANCY_SHARE = 0.05
 
 
 @dataclass(frozen=True)
@@ -143,6 +163,9 @@ ADVICE = {
                        "spheres, or a blurred rim): centres are uncertain by about this much and spheres near a "
                        "layer boundary may be counted in the next layer; check the preview (such centres are "
                        "marked with a red cross)",
+    "vacancies": "spheres are missed where the bed has no room for a gap: check the preview (the places "
+                 "are circled in red and marked ?); under a lamp's reflection on the wall, move the lamp off the "
+                 "camera's axis so that its reflection falls outside the window",
     "frame_totals": "some frames find far more or fewer spheres: lighting changes, dropped or corrupt frames",
     "heavy_share_conserved": "the depth-mean heavy share drifts from c0: the window does not sample the "
                              "bed fairly, or the classes drift over the run",
@@ -173,7 +196,7 @@ def assess(*, n: np.ndarray, n_heavy: np.ndarray, c0: float, first_heights: np.n
            separation: Any | None, n_bad_frames: int, wall_detections: float,
            wall_glare: float = 0.0, exposure_gain: tuple[float, float] = (1.0, 1.0),
            exposure_matched: bool = False, class_shift: tuple[float, int] = (0.0, 0), blur: Any | None = None, by_match: np.ndarray | None = None,
-           gloss_at_spots: bool | None = None) -> Quality:
+           gloss_at_spots: bool | None = None, vacant: tuple[int, int] | None = None) -> Quality:
     """Run every check on one analysed run.
 
     n, n_heavy: (n_t, n_layers) counts (rows of bad frames all zero);
@@ -198,7 +221,10 @@ def assess(*, n: np.ndarray, n_heavy: np.ndarray, c0: float, first_heights: np.n
     whether each counted sphere was placed by its template's best match
     rather than by its outline (its share is recorded among the figures;
     ``centres_settled`` still judges every sphere's outline fit, which for
-    these spheres says their rim gives it nothing to settle on).
+    these spheres says their rim gives it nothing to settle on); vacant: the
+    run's vacancies (places where a sphere would fit between those found,
+    :func:`vacancies`) and the spheres found where they were looked for (None:
+    not checked).
     """
     n_t, n_layers = n.shape
     good = n.sum(axis=1) > 0
@@ -240,6 +266,9 @@ def assess(*, n: np.ndarray, n_heavy: np.ndarray, c0: float, first_heights: np.n
         # in the median; a frame of background and gaps does not
         checks.append(_check("detection_confidence", float(np.median(scores)), 0.5, ">=",
                              "median correlation of the spheres with their template"))
+    if vacant is not None and (vacant[0] or vacant[1]):  # (0, 0): a window too small to search
+        checks.append(_check("vacancies", vacant[0] / max(vacant[1], 1), VACANCY_SHARE, "<=",
+                             "places with room for a sphere between those found, per sphere found"))
     if settle is not None and len(settle):
         checks.append(_check("centres_settled", float(np.percentile(settle, 90)), SETTLE_PX, "<=",
                              "90th percentile of the outline fit's last step [px]"))
@@ -328,6 +357,42 @@ def views_table(maps: Any) -> list[dict[str, Any]]:
             v: None if c is None else {"drift": float(c.value), "limit": float(c.limit), "passed": bool(c.passed)}
             for v, c in checks.items()}})
     return rows
+
+
+def vacancies(x: np.ndarray, y: np.ndarray, window: tuple[float, float, float, float],
+              particle_diameter_px: float) -> tuple[np.ndarray, int]:
+    """Places in one frame's window where a sphere would fit between the spheres found.
+
+    x, y: the centres found [undistorted px]; window: (x0, y0, x1, y1). The
+    points of a grid of a tenth of a diameter that lie farther than
+    VACANCY_GAP diameters from every centre are free; taken row by row, a free
+    point a diameter or more from every vacancy so far is a new one (so a
+    stretch of several spheres missed side by side gives several vacancies,
+    not one), placed at the middle of the free points within half a diameter.
+    Returns their centres (k, 2) [px] and the number of centres found in the
+    part of the window searched (what the vacancies are counted against).
+    """
+    d = float(particle_diameter_px)
+    x0, y0, x1, y1 = window
+    xs = np.arange(x0 + VACANCY_INSET_SIDES * d, x1 - VACANCY_INSET_SIDES * d, 0.1 * d)
+    ys = np.arange(y0 + VACANCY_INSET_WALLS * d, y1 - VACANCY_INSET_WALLS * d, 0.1 * d)
+    if len(xs) == 0 or len(ys) == 0:
+        return np.zeros((0, 2)), 0
+    x, y = np.asarray(x, dtype=float), np.asarray(y, dtype=float)
+    searched = int(np.sum((x >= xs[0]) & (x <= xs[-1]) & (y >= ys[0]) & (y <= ys[-1])))
+    gx, gy = np.meshgrid(xs, ys)  # row by row
+    grid = np.column_stack([gx.ravel(), gy.ravel()])
+    if len(x):
+        free = grid[cKDTree(np.column_stack([x, y])).query(grid)[0] > VACANCY_GAP * d]
+    else:
+        free = grid
+    chosen = np.empty((len(free), 2))
+    k = 0
+    for p in free:
+        if k == 0 or np.hypot(*(chosen[:k] - p).T).min() >= d:
+            chosen[k] = p
+            k += 1
+    return np.array([free[np.hypot(*(free - p).T) <= 0.5 * d].mean(axis=0) for p in chosen[:k]]).reshape(-1, 2), searched
 
 
 def _layer_cv(n: np.ndarray) -> np.ndarray:

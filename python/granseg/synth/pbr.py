@@ -131,6 +131,9 @@ PLA = {"type": "roughplastic", "alpha": 0.35, "int_ior": 1.46,
 LAMPS: dict[str, list[tuple[float, float]]] = {
     "two-sided": [(-55.0, 270.0), (55.0, 270.0)],
     "left": [(-55.0, 270.0)],
+    # one panel straight behind the camera: the curved wall mirrors it in a
+    # bright band down the middle of the window
+    "front": [(0.0, 300.0)],
 }
 LAMP_SIZE = (60.0, 200.0)
 
@@ -151,6 +154,8 @@ FIXTURE_LOOKS: dict[str, dict[str, Any]] = {
     "ceramic-pom": dict(heavy="ceramic", light="pom", c0=0.25, seed=21, experiment={"M_g": 2.63}),
     "grey-glossy-matte": dict(heavy="grey-glossy", light="grey-matte", c0=0.5, seed=17,
                               experiment={"rho_h": 2000.0, "rho_l": 1000.0, "M_g": 2.0}),
+    # the pom-pp pair under a panel behind the camera instead of the two side panels
+    "pom-pp-front": dict(heavy="pom", light="pp", c0=0.5, seed=22, lighting="front", experiment={"M_g": 1.62}),
 }
 FIXTURE_FRAMES = 4
 FIXTURE_SIZE = (640, 720)
@@ -698,7 +703,8 @@ def render_pbr_frames(
         normal lens, f = 1.5 x width, barrel k1 = -0.25.
     The window is not a parameter: it follows from the geometry (module
     docstring) and is written to the experiment.
-    lighting : "two-sided" (an LED panel on each side of the camera) or "left".
+    lighting : "two-sided" (an LED panel on each side of the camera), "left" or "front" (one
+        panel behind the camera).
     exposure : gain on the automatic exposure of frame 0 (1 = nominal).
     noise : scale of the sensor noise (shot noise of a 1500 e- well, read
         noise 1.5 grey levels); 0 for none.
