@@ -221,7 +221,6 @@ def render_control(heavy: str, light: str, out: Path) -> dict:
     a panel behind the camera; the detector's outward error on each."""
     import granseg.synth.pbr as pbr
 
-    pbr.LAMPS.setdefault("behind-camera", [(0.0, 300.0)])  # this script only; 300 mm from the axis
     # the side panels at the same angles, 2.2x and 5.6x further away: is it how close they are?
     for dist in FAR_PANELS_MM:
         pbr.LAMPS.setdefault(f"two-sided-{dist:.0f}", [(-55.0, dist), (55.0, dist)])
@@ -229,7 +228,7 @@ def render_control(heavy: str, light: str, out: Path) -> dict:
     for name, kw in (("two side panels", {}), ("two side panels, no vignetting", {"vignetting": 0.0}),
                      *((f"two side panels {dist:.0f} mm from the axis", {"lighting": f"two-sided-{dist:.0f}"})
                        for dist in FAR_PANELS_MM),
-                     ("one panel behind the camera", {"lighting": "behind-camera"})):
+                     ("one panel behind the camera", {"lighting": "front"})):
         folder = out / name.replace(" ", "-").replace(",", "")
         pbr.render_pbr_frames(pbr.fixture_map(2, 0.5), heavy=heavy, light=light, image_size=pbr.FIXTURE_SIZE,
                               particle_diameter_px=pbr.FIXTURE_D_PX, noise=0.0, jpeg_quality=None, spp=16,

@@ -82,11 +82,11 @@ def draw_preview(crop: np.ndarray, result: Any, i: int) -> np.ndarray:
         else:
             cv2.circle(img, to_px(x, y), 2, colour, -1, cv2.LINE_AA)
     holes, _ = vacancies(s.x, s.y, exp.window, exp.particle_diameter_px)
+    radius = int(round(0.5 * exp.particle_diameter_px * scale * 0.92))
     for x, y in holes:  # room for a sphere between those found (quality check vacancies)
-        cv2.circle(img, to_px(x, y), int(round(0.5 * exp.particle_diameter_px * scale * 0.92)), FAIL_BGR, 1,
-                   cv2.LINE_AA)
-        cv2.putText(img, "?", (to_px(x, y)[0] - 5, to_px(x, y)[1] + 6), cv2.FONT_HERSHEY_SIMPLEX, 0.5, FAIL_BGR, 1,
-                    cv2.LINE_AA)
+        cx, cy = to_px(x, y)
+        cv2.circle(img, (cx, cy), radius, FAIL_BGR, 1, cv2.LINE_AA)
+        cv2.putText(img, "?", (cx - 5, cy + 6), cv2.FONT_HERSHEY_SIMPLEX, 0.5, FAIL_BGR, 1, cv2.LINE_AA)
     body = np.hstack([img, _panel(img.shape[0], result, i, to_px(0, y0)[1], to_px(0, y1)[1])])
     return np.vstack([_header(body.shape[1], result, i), body])
 
