@@ -139,6 +139,37 @@ def test_vacancies_are_the_spheres_taken_out_of_a_packed_bed():
     assert dist.min(axis=1).max() < (1 - VACANCY_GAP) * d + 3.0  # each vacancy where a sphere was taken out
 
 
+def test_spheres_missed_at_the_window_side_are_found_with_the_spheres_beside_it():
+    """A sphere missed right at the window's side is a vacancy once the spheres beyond the side are
+    known; without them it lies in the inset where nothing is searched."""
+    d, window = 30.0, (100.0, 50.0, 400.0, 500.0)
+    centres = _packed("hexagonal", d, window)
+    inside = (centres[:, 0] >= 100.0) & (centres[:, 0] < 400.0)
+    rows = (centres[:, 1] >= 50.0) & (centres[:, 1] < 500.0)
+    beside = centres[~inside & rows & (centres[:, 0] > 100.0 - 0.75 * d) & (centres[:, 0] < 400.0 + 0.75 * d)]
+    edge = np.flatnonzero(inside & (centres[:, 0] < 100.0 + 0.5 * d) & (np.abs(centres[:, 1] - 275.0) < d))[0]
+    kept = np.delete(centres[inside], np.flatnonzero(np.flatnonzero(inside) == edge), axis=0)
+    holes, _ = vacancies(kept[:, 0], kept[:, 1], window, d)
+    assert len(holes) == 0  # in the inset: not searched
+    holes, searched = vacancies(kept[:, 0], kept[:, 1], window, d, beside, (0.75 * d, 0.75 * d))
+    assert len(holes) == 1 and np.hypot(*(holes[0] - centres[edge])) < (1 - VACANCY_GAP) * d + 3.0
+    assert searched > len(kept) - 40  # up to the sides
+
+
+def test_a_side_with_no_bed_beyond_it_keeps_its_inset():
+    """Where nothing is found beyond a side (the bed ends there, or the image does), the gap
+    along it is not taken for spheres missed."""
+    d, window = 30.0, (100.0, 50.0, 400.0, 500.0)
+    centres = _packed("hexagonal", d, window)
+    bed = centres[(centres[:, 0] >= 100.0 + 0.5 * d) & (centres[:, 0] < 400.0)]  # ends half a diameter in
+    rows = (centres[:, 1] >= 50.0) & (centres[:, 1] < 500.0)
+    right = centres[rows & (centres[:, 0] >= 400.0) & (centres[:, 0] < 400.0 + 0.75 * d)]
+    holes, _ = vacancies(bed[:, 0], bed[:, 1], window, d, right, (0.75 * d, 0.75 * d))
+    assert len(holes) == 0
+    holes, _ = vacancies(bed[:, 0], bed[:, 1], window, d, np.zeros((0, 2)), (0.0, 0.75 * d))
+    assert len(holes) == 0
+
+
 def test_spheres_missed_are_flagged_as_vacancies():
     """The check fails once a run misses more than one sphere in twenty."""
     def quality(vacant):

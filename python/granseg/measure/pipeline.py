@@ -30,7 +30,7 @@ from granseg.measure.classify import (
     smeared_images,
     sphere_features,
 )
-from granseg.measure.detect import Templates, detect_particles, learn_templates
+from granseg.measure.detect import INSIDE_RADII, Templates, detect_particles, learn_templates
 from granseg.measure.experiment import Experiment, load_experiment
 from granseg.measure.exposure import Exposure, bed_level, survey, survey_indices
 from granseg.measure.layers import (
@@ -76,7 +76,11 @@ class FrameSpheres:
     settle: how far [px] the outline fit's last iteration moved each centre;
     by_match: whether each sphere was placed where its template matches best
     rather than by its outline (a material learned from the other's matches,
-    :func:`granseg.measure.detect.learn_templates`; None: none was).
+    :func:`granseg.measure.detect.learn_templates`; None: none was);
+    beside: centres (k, 2) found beyond the window's left and right sides, in
+    its rows and clear of lid and plate (not counted; the vacancies check
+    looks up to the sides with them), looked for up to reach = (left, right)
+    [px] beyond them (0 where the image does not go on).
     """
 
     x: np.ndarray
@@ -92,6 +96,8 @@ class FrameSpheres:
     heavy: np.ndarray | None = None
     p_heavy: np.ndarray | None = None
     by_match: np.ndarray | None = None
+    beside: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+    reach: tuple[float, float] = (0.0, 0.0)
 
 
 @dataclass
@@ -312,6 +318,17 @@ class _FrameWorker:
             raise ValueError(f"{exp.path}: field 'window': {list(exp.window)} is outside the image "
                              f"({image_size[0]} x {image_size[1]} px) once undistorted with its "
                              "'camera_matrix' and 'dist_coeffs'")
+        self.reach = self._reach()
+
+    def _reach(self) -> tuple[float, float]:
+        """How far [px] beyond the window's left and right sides spheres can be found: to the crop's
+        edge, less the strip where detect_particles reports none (INSIDE_RADII); 0 on a side whose
+        margin the image does not cover (filled by replicating its border)."""
+        x0, y0, x1, y1 = self.exp.window
+        edge = 0.5 * INSIDE_RADII * self.exp.particle_diameter_px
+        left, right = x0 - self.crop[0] - edge, self.crop[2] - x1 - edge
+        return (left if left > 0 and self.undistort.inside_image((self.crop[0], y0, x0, y1)) else 0.0,
+                right if right > 0 and self.undistort.inside_image((x1, y0, self.crop[2], y1)) else 0.0)
 
     def survey(self, source: FrameDirectory | VideoFrames, first_index: int, first: np.ndarray,
                workers: int = 1) -> None:
@@ -382,10 +399,13 @@ class _FrameWorker:
             raise BadFrame(f"{name}: no spheres detected in the window")
         feats = sphere_features(crop, found[keep, :2], d, self.spots) if describe else np.zeros((keep.sum(), 0))
         by_match = self.templates.by_match
+        x0, y0, x1, y1 = self.exp.window
+        beside = ~inside & clear & (y >= y0) & (y < y1)
         return FrameSpheres(x[keep], y[keep], found[keep, 2], found[keep, 3], feats, found[keep, 5],
                             wall=int((inside & ~clear).sum()), glare=glare, gain=gain,
                             gain_taken_off=self.exposure.drifting,
-                            by_match=None if by_match is None else by_match[found[keep, 4].astype(int)])
+                            by_match=None if by_match is None else by_match[found[keep, 4].astype(int)],
+                            beside=np.column_stack([x[beside], y[beside]]), reach=self.reach)
 
 
 def _in_thread(source, worker, i: int, image: np.ndarray | None, keep_crop: bool):
@@ -629,7 +649,8 @@ def _vacant(good: list[FrameSpheres], exp: Experiment) -> tuple[int, int]:
     """The vacancies (quality.vacancies) of up to VACANCY_FRAMES frames of the run, and the spheres
     found where they were looked for."""
     pick = np.unique(np.linspace(0, len(good) - 1, min(len(good), VACANCY_FRAMES)).round().astype(int))
-    found = [vacancies(good[i].x, good[i].y, exp.window, exp.particle_diameter_px) for i in pick]
+    found = [vacancies(good[i].x, good[i].y, exp.window, exp.particle_diameter_px, good[i].beside, good[i].reach)
+             for i in pick]
     return sum(len(v) for v, _ in found), sum(n for _, n in found)
 
 

@@ -81,7 +81,7 @@ def draw_preview(crop: np.ndarray, result: Any, i: int) -> np.ndarray:
             cv2.drawMarker(img, to_px(x, y), FAIL_BGR, cv2.MARKER_TILTED_CROSS, 9, 2, cv2.LINE_AA)
         else:
             cv2.circle(img, to_px(x, y), 2, colour, -1, cv2.LINE_AA)
-    holes, _ = vacancies(s.x, s.y, exp.window, exp.particle_diameter_px)
+    holes, _ = vacancies(s.x, s.y, exp.window, exp.particle_diameter_px, s.beside, s.reach)
     radius = int(round(0.5 * exp.particle_diameter_px * scale * 0.92))
     for x, y in holes:  # room for a sphere between those found (quality check vacancies)
         cx, cy = to_px(x, y)

@@ -72,11 +72,16 @@ SETTLE_PX = 0.4
 # (four spheres in a square; 0.15 d among three). A place farther than
 # VACANCY_GAP diameters from every centre found would hold a disk of 0.7 d: a
 # sphere missed, or a hole the packing really has. Looked for VACANCY_INSET_SIDES
-# diameters inside the window's sides (spheres just outside it are not in the
-# frame's list) and VACANCY_INSET_WALLS from lid and plate (the bumps' hollows).
+# diameters inside the edge of the region whose spheres are known (a sphere
+# just beyond it is not in the list), which is the window's side unless the
+# spheres beside the window are given, and VACANCY_INSET_WALLS from lid and
+# plate (the bumps' hollows). Spheres beside the window count only where they
+# are found at VACANCY_BESIDE_FILL or more of the window's density: a side
+# where no bed goes on (a post, the cell's end) keeps its inset.
 VACANCY_GAP = 0.85
 VACANCY_INSET_SIDES = 0.6
 VACANCY_INSET_WALLS = 1.0
+VACANCY_BESIDE_FILL = 0.5
 # Vacancies per sphere found, on the tuning looks: every 2-D scene of seeds 7-8
 # 0-0.021 (its packings have a few holes of their own), the physically based
 # packings of seed offset 100 0-0.012, two-frame lighting controls 0.005-0.025
@@ -360,32 +365,37 @@ def views_table(maps: Any) -> list[dict[str, Any]]:
 
 
 def vacancies(x: np.ndarray, y: np.ndarray, window: tuple[float, float, float, float],
-              particle_diameter_px: float) -> tuple[np.ndarray, int]:
+              particle_diameter_px: float, beside: np.ndarray | None = None,
+              reach: tuple[float, float] = (0.0, 0.0)) -> tuple[np.ndarray, int]:
     """Places in one frame's window where a sphere would fit between the spheres found.
 
-    x, y: the centres found [undistorted px]; window: (x0, y0, x1, y1). The
-    points of a grid of a tenth of a diameter that lie farther than
-    VACANCY_GAP diameters from every centre are free; taken row by row, a free
-    point a diameter or more from every vacancy so far is a new one (so a
-    stretch of several spheres missed side by side gives several vacancies,
-    not one), placed at the middle of the free points within half a diameter.
-    Returns their centres (k, 2) [px] and the number of centres found in the
-    part of the window searched (what the vacancies are counted against).
+    x, y: the centres found in the window [undistorted px]; window: (x0, y0,
+    x1, y1); beside: centres (k, 2) found beyond the window's left and right
+    sides, looked for up to reach = (left, right) [px] beyond them (0: not
+    looked for). The points of a grid of a tenth of a diameter that lie
+    farther than VACANCY_GAP diameters from every centre are free; taken row
+    by row, a free point a diameter or more from every vacancy so far is a
+    new one (so a stretch of several spheres missed side by side gives
+    several vacancies, not one), placed at the middle of the free points
+    within half a diameter. Returns their centres (k, 2) [px] and the number
+    of centres found in the part of the window searched (what the vacancies
+    are counted against).
     """
     d = float(particle_diameter_px)
     x0, y0, x1, y1 = window
-    xs = np.arange(x0 + VACANCY_INSET_SIDES * d, x1 - VACANCY_INSET_SIDES * d, 0.1 * d)
+    x, y = np.asarray(x, dtype=float), np.asarray(y, dtype=float)
+    beside = np.zeros((0, 2)) if beside is None else np.asarray(beside, dtype=float).reshape(-1, 2)
     ys = np.arange(y0 + VACANCY_INSET_WALLS * d, y1 - VACANCY_INSET_WALLS * d, 0.1 * d)
+    left, right = _known_beside(x, y, beside, window, d, reach)
+    xs = np.arange(x0 + max(0.0, VACANCY_INSET_SIDES * d - left), x1 - max(0.0, VACANCY_INSET_SIDES * d - right),
+                   0.1 * d)
     if len(xs) == 0 or len(ys) == 0:
         return np.zeros((0, 2)), 0
-    x, y = np.asarray(x, dtype=float), np.asarray(y, dtype=float)
     searched = int(np.sum((x >= xs[0]) & (x <= xs[-1]) & (y >= ys[0]) & (y <= ys[-1])))
     gx, gy = np.meshgrid(xs, ys)  # row by row
     grid = np.column_stack([gx.ravel(), gy.ravel()])
-    if len(x):
-        free = grid[cKDTree(np.column_stack([x, y])).query(grid)[0] > VACANCY_GAP * d]
-    else:
-        free = grid
+    known = np.concatenate([np.column_stack([x, y]), beside])
+    free = grid[cKDTree(known).query(grid)[0] > VACANCY_GAP * d] if len(known) else grid
     chosen = np.empty((len(free), 2))
     k = 0
     for p in free:
@@ -393,6 +403,20 @@ def vacancies(x: np.ndarray, y: np.ndarray, window: tuple[float, float, float, f
             chosen[k] = p
             k += 1
     return np.array([free[np.hypot(*(free - p).T) <= 0.5 * d].mean(axis=0) for p in chosen[:k]]).reshape(-1, 2), searched
+
+
+def _known_beside(x: np.ndarray, y: np.ndarray, beside: np.ndarray, window: tuple[float, float, float, float],
+                  d: float, reach: tuple[float, float]) -> tuple[float, float]:
+    """How far [px] beyond the window's left and right sides the spheres are known: the reach
+    looked at, where the spheres found there are VACANCY_BESIDE_FILL or more of what the window's
+    density would put there; else 0 (no bed there, or nothing to tell a gap by)."""
+    x0, y0, x1, y1 = window
+    density = len(x) / max((x1 - x0) * (y1 - y0), 1.0)
+    bx, by = beside[:, 0], beside[:, 1]
+    rows = (by >= y0) & (by < y1)
+    found = (np.sum(rows & (bx < x0) & (bx >= x0 - reach[0])), np.sum(rows & (bx >= x1) & (bx < x1 + reach[1])))
+    return tuple(float(r) if r > 0 and n >= VACANCY_BESIDE_FILL * density * r * (y1 - y0) else 0.0
+                 for r, n in zip(reach, found, strict=True))
 
 
 def _layer_cv(n: np.ndarray) -> np.ndarray:
