@@ -4,7 +4,7 @@ For every look of a folder rendered by ``python -m granseg.synth.pbr fixtures
 FOLDER`` (the committed fixtures by default): recall of the spheres in the
 window (a truth sphere with a detection within 0.4 D), c_raw RMSD and per-frame
 layer counts (mean over frames and layers of |n - n_true| / n_true) against
-the truth, the ``centres_settled`` and ``vacancies`` figures and the quality verdict. With
+the truth, the ``centres_settled``, ``vacancies`` and ``window_lines`` figures and the quality verdict. With
 ``--polarities`` also what the detector's learning saw in the first frame: the
 polarity of each band of the stratified start, and, where they differ, how
 well the spheres found by each set of templates pack (one polarity, each
@@ -101,6 +101,7 @@ def measure(folder: Path, look: str, seen: list[dict]) -> dict:
            "frame_layer_count_error": float(np.mean(np.abs(a.n - truth.n)[truth.n > 0] / truth.n[truth.n > 0])),
            "centres_settled": float(checks["centres_settled"].value) if "centres_settled" in checks else None,
            "vacancies": float(checks["vacancies"].value) if "vacancies" in checks else None,
+           "window_lines": float(checks["window_lines"].value) if "window_lines" in checks else None,
            "quality_ok": bool(a.quality.ok), "failed_checks": [c.name for c in a.quality.failed],
            **_blur_figures(a)}
     # the whole frame's polarity comes first, then one per band (learn_templates' order)
@@ -139,8 +140,9 @@ def main() -> None:
         r = results[look] = measure(args.dir, look, seen)
         settled = "-" if r["centres_settled"] is None else f"{r['centres_settled']:.2f}"
         vacant = "-" if r["vacancies"] is None else f"{r['vacancies']:.3f}"
+        lines = "-" if r["window_lines"] is None else f"{r['window_lines']:.3f}"
         line = (f"{look:18s} recall {r['recall']:.3f}  c_raw RMSD {r['rmsd']:.3f}  per-frame layer counts "
-                f"{100 * r['frame_layer_count_error']:4.1f} %  centres_settled {settled}  vacancies {vacant}  "
+                f"{100 * r['frame_layer_count_error']:4.1f} %  centres_settled {settled}  vacancies {vacant}  window_lines {lines}  "
                 f"{'ok' if r['quality_ok'] else 'flagged: ' + ', '.join(r['failed_checks'])}  smeared classes "
                 f"{'kept' if r['classes_learned_smeared'] else 'not kept'} "
                 f"({r['blur_disagreements_near_plate']}/{r['blur_disagreements']} near the plate), gloss "

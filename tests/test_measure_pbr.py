@@ -41,8 +41,10 @@ MISSED = {
     # mirror steel is learned from the matte spheres' matches and placed by its
     # template (detect._borrowed): both maps meet the RMSD target, their counts
     # are 3.6-3.8 % off; the outline fit still does not settle on its rim
-    "steel-pp": "mirror-like steel over blue PP: placed by its template, counts 3.1 % (flagged: centres_settled)",
-    "steel-pom": "mirror-like steel over POM: placed by its template, counts 3.5 % (flagged: centres_settled)",
+    "steel-pp": "mirror-like steel over blue PP: placed by its template, counts 3.1 % (flagged: centres_settled, "
+                "window_lines)",
+    "steel-pom": "mirror-like steel over POM: placed by its template, counts 3.5 % (flagged: centres_settled, "
+                 "window_lines)",
     # not flagged: the side lamps shade off-axis spheres unevenly and the
     # outline fit follows the lit limb, so centres are found outward (x 1.0-1.6
     # px near the sides, y 0.4-0.7 px near top and bottom); spheres on a layer

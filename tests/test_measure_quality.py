@@ -31,7 +31,15 @@ from granseg.measure.classify import (
     spot_weights,
 )
 from granseg.measure.exposure import DRIFT_LIMIT
-from granseg.measure.quality import VACANCY_GAP, Quality, assess, vacancies
+from granseg.measure.quality import (
+    VACANCY_GAP,
+    WALL_LINE_SLACK,
+    Quality,
+    WallLines,
+    assess,
+    vacancies,
+    wall_lines,
+)
 from granseg.synth import render_frames
 from granseg.synth.scenes import render_scene
 
@@ -178,7 +186,7 @@ def test_spheres_missed_are_flagged_as_vacancies():
     assert [c.name for c in quality((40, 400)).failed] == ["vacancies"]
 
 
-def _first_frame_checks_with(vacant):
+def _first_frame_checks_with(vacant, walls=None):
     rng = np.random.default_rng(0)
     h = rng.uniform(0.5, 14.5, 140)
     heavy = h > 7.5
@@ -186,7 +194,66 @@ def _first_frame_checks_with(vacant):
     n = np.tile(np.bincount(layer, minlength=15), (3, 1))
     nh = np.tile(np.bincount(layer[heavy], minlength=15), (3, 1))
     return assess(n=n, n_heavy=nh, c0=0.5, first_heights=h, first_heavy=heavy, scores=np.full(140, 0.9),
-                  p_heavy=None, separation=None, n_bad_frames=0, wall_detections=0.0, vacant=vacant)
+                  p_heavy=None, separation=None, n_bad_frames=0, wall_detections=0.0, vacant=vacant, walls=walls)
+
+
+def _bed_between_walls(d: float, window, bumps: bool) -> np.ndarray:
+    """y of a hexagonal packing resting on the plate and pressed under the lid (rows from both
+    walls meet in the middle), with the walls' hemispheres as a detector finds them (centred on
+    the wall line, up to 0.3 d off) when ``bumps``."""
+    _, y0, _, y1 = window
+    rows = d * np.sqrt(3) / 2
+    up = y1 - d / 2 - rows * np.arange(9)  # from the plate
+    down = y0 + d / 2 + rows * np.arange(8)  # from the lid
+    y = np.repeat(np.r_[up, down], 10)
+    if bumps:
+        rng = np.random.default_rng(0)
+        y = np.r_[y, y1 - rng.uniform(-0.3, 0.3, 4) * d, y0 + rng.uniform(-0.3, 0.3, 4) * d]
+    return y
+
+
+@pytest.mark.parametrize("bumps", [False, True])
+def test_window_lines_on_the_walls_read_half_a_diameter(bumps):
+    d, window = 30.0, (100.0, 50.0, 400.0, 50.0 + 15 * 30.0)
+    walls = wall_lines(_bed_between_walls(d, window, bumps), window)
+    assert abs(walls.plate) < 0.01 and abs(walls.lid) < 0.01 and walls.layer_px == pytest.approx(d)
+
+
+@pytest.mark.parametrize("line, move", [("lid", 0.15), ("lid", -0.15), ("plate", 0.2), ("plate", -0.12)])
+def test_a_window_line_off_the_wall_is_read_by_how_much_and_which_way(line, move):
+    """A line moved ``move`` diameters out of the bed (negative: into it) reads that much at its
+    wall and nothing at the other, the bumps and the spheres left out as bumps included."""
+    d, window = 30.0, (100.0, 50.0, 400.0, 50.0 + 15 * 30.0)
+    y = _bed_between_walls(d, window, bumps=True)
+    x0, y0, x1, y1 = window
+    moved = (x0, y0 - move * d, x1, y1) if line == "lid" else (x0, y0, x1, y1 + move * d)
+    walls = wall_lines(y, moved)
+    other = walls.plate if line == "lid" else walls.lid
+    assert getattr(walls, line) == pytest.approx(move, abs=0.02) and abs(other) < 0.02
+
+
+def test_the_window_lines_check_says_which_line_to_move_and_by_how_many_pixels():
+    quality = _first_frame_checks_with(None, walls=WallLines(plate=0.2, lid=-0.01, layer_px=40.0))
+    assert [c.name for c in quality.failed] == ["window_lines"]
+    about = quality.failed[0].about
+    assert "move y1 up by 8 px" in about and "move y0" not in about
+    assert _first_frame_checks_with(None, walls=WallLines(0.5 * WALL_LINE_SLACK, float("nan"), 40.0)).ok
+
+
+def test_a_window_drawn_off_the_lid_is_flagged(tmp_path):
+    """The same frames pass with the window as rendered and fail with its lid line 0.25 d up."""
+    r = render_frames(stratified_map(4, 0.5), seed=5, out_dir=tmp_path, heavy="ceramic", light="pp", **SMALL)
+    exp_path = tmp_path / "experiment.json"
+    exp = json.loads(exp_path.read_text())
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", QualityWarning)
+        right = analyze(tmp_path, smooth=1, save=False, progress=False, workers=2)
+        x0, y0, x1, y1 = exp["window"]
+        exp_path.write_text(json.dumps({**exp, "window": [x0, y0 - 0.25 * SMALL["particle_diameter_px"], x1, y1]}))
+        off = analyze(tmp_path, smooth=1, save=False, progress=False, workers=2)
+    assert "window_lines" not in [c.name for c in right.quality.failed], right.quality.report()
+    assert "window_lines" in [c.name for c in off.quality.failed], off.quality.report()
+    assert np.sqrt(np.nanmean((off.c_raw - r.c_raw) ** 2)) > np.sqrt(np.nanmean((right.c_raw - r.c_raw) ** 2))
 
 
 def test_quality_is_stored_in_the_map_and_refused_downstream(tmp_path):

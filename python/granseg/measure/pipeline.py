@@ -43,7 +43,7 @@ from granseg.measure.layers import (
 )
 from granseg.measure.outline import class_shift
 from granseg.measure.preview import check_previews, write_previews
-from granseg.measure.quality import Quality, QualityWarning, assess, vacancies
+from granseg.measure.quality import Quality, QualityWarning, assess, vacancies, wall_lines
 from granseg.measure.sources import BadFrame, FrameDirectory, VideoFrames, open_frames
 from granseg.measure.wall import remove_wall_glare
 
@@ -80,7 +80,9 @@ class FrameSpheres:
     beside: centres (k, 2) found beyond the window's left and right sides, in
     its rows and clear of lid and plate (not counted; the vacancies check
     looks up to the sides with them), looked for up to reach = (left, right)
-    [px] beyond them (0 where the image does not go on).
+    [px] beyond them (0 where the image does not go on); wall_y: the
+    centres' y [undistorted px] of the detections left out as hemispheres of
+    the lid or plate (``wall`` of them), which the window_lines check reads.
     """
 
     x: np.ndarray
@@ -98,6 +100,7 @@ class FrameSpheres:
     by_match: np.ndarray | None = None
     beside: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
     reach: tuple[float, float] = (0.0, 0.0)
+    wall_y: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
 
 @dataclass
@@ -405,7 +408,8 @@ class _FrameWorker:
                             wall=int((inside & ~clear).sum()), glare=glare, gain=gain,
                             gain_taken_off=self.exposure.drifting,
                             by_match=None if by_match is None else by_match[found[keep, 4].astype(int)],
-                            beside=np.column_stack([x[beside], y[beside]]), reach=self.reach)
+                            beside=np.column_stack([x[beside], y[beside]]), reach=self.reach,
+                            wall_y=y[inside & ~clear])
 
 
 def _in_thread(source, worker, i: int, image: np.ndarray | None, keep_crop: bool):
@@ -635,6 +639,7 @@ def _assess(result: Analysis, shift: tuple[float, int] = (0.0, 0)) -> Quality:
         by_match=np.concatenate([np.zeros(len(s.x), bool) if s.by_match is None else s.by_match for s in good]),
         gloss_at_spots=result.classes.gloss_at_spots if learned else None,
         vacant=_vacant(good, result.experiment),
+        walls=wall_lines(np.r_[first.y, first.wall_y], result.experiment.window),
     )
 
 
