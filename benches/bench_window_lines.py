@@ -32,7 +32,6 @@ import numpy as np
 
 from granseg._io import save_json
 from granseg.measure import analyze
-from granseg.measure.quality import wall_lines
 from granseg.synth.scenes import render_scene, scene_names
 
 
@@ -62,24 +61,23 @@ def measure(source: Path, truth_n: np.ndarray, truth_c: np.ndarray, shifts: list
             elif line == "plate":
                 w[3] += k * d  # out of the bed: down
             exp_path.write_text(json.dumps({**exp, "window": w}), encoding="utf-8")
-            out[name] = _case(source, w, truth_n, truth_c)
+            out[name] = _case(source, truth_n, truth_c)
     finally:
         exp_path.write_text(original, encoding="utf-8")
     return out
 
 
-def _case(source: Path, window: list[float], truth_n: np.ndarray, truth_c: np.ndarray) -> dict:
+def _case(source: Path, truth_n: np.ndarray, truth_c: np.ndarray) -> dict:
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             a = analyze(source, smooth=1, save=False, progress=False, workers=2)
     except ValueError as exc:  # e.g. a line moved so far that the first frame is not stratified
         return {"error": str(exc)[-160:]}
-    first = next(s for s in a.spheres if s is not None)
-    walls = wall_lines(np.r_[first.y, first.wall_y], tuple(window))
+    walls = a.quality.figures["window_lines_d"]  # what the check read (quality.wall_lines)
     check = next((c for c in a.quality.checks if c.name == "window_lines"), None)
     ok = truth_n > 0
-    return {"plate": round(walls.plate, 4), "lid": round(walls.lid, 4),
+    return {**{k: float("nan") if v is None else round(v, 4) for k, v in walls.items()},
             "flagged": check is not None and not check.passed,
             "failed_checks": [c.name for c in a.quality.failed],
             "rmsd": round(float(np.sqrt(np.nanmean((a.c_raw - truth_c) ** 2))), 4),

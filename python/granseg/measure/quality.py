@@ -335,6 +335,9 @@ def assess(*, n: np.ndarray, n_heavy: np.ndarray, c0: float, first_heights: np.n
         figures["gloss_at_learned_spots"] = bool(gloss_at_spots)
     if by_match is not None and len(by_match):
         figures["placed_by_template_match"] = float(np.mean(by_match))
+    if walls is not None:
+        figures["window_lines_d"] = {k: float(v) if np.isfinite(v) else None  # None: too few spheres there
+                                     for k, v in (("plate", walls.plate), ("lid", walls.lid))}
     if blur is not None:
         figures.update(classes_learned_smeared=bool(blur.smeared), blur_disagreements=int(blur.disagree),
                        blur_disagreements_near_plate=int(blur.near_plate),
