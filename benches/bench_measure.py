@@ -6,19 +6,67 @@ Renders the frames once (granseg.synth, steel/PP, two side lamps, JPEG 90;
 into DIR and kept there when given, reused if DIR already holds them), then
 times the whole analysis (decode, undistort, detect, classify, bin) with the
 given number of worker processes, best of --repeat runs.
+
+Shared machines differ from day to day (this bench read 12-14 frames/s one
+day and 20-21 the next on the same tree), so each run also times a fixed
+piece of OpenCV and numpy work that does not depend on granseg's code, on as
+many processes at once as the analysis has workers, so that another job
+taking a core shows in it too (the machine's yardstick, :func:`yardstick_ms`,
+before and after the analysis):
+two trees are compared by taking turns in one session, and a figure from
+another day is read against its yardstick.
 """
 
 from __future__ import annotations
 
 import argparse
+import multiprocessing
 import tempfile
 import time
+from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 from granseg.measure import analyze
 from granseg.synth import render_frames
+
+
+def yardstick_ms(frame: Path, workers: int) -> float:
+    """Milliseconds a round of :func:`_yardstick` takes with ``workers`` processes doing it at once:
+    the mean over ten rounds each, the slowest process's."""
+    # spawned, not forked: a fork of a process whose OpenCV threads have run can hang
+    context = multiprocessing.get_context("spawn")
+    start_together = context.Barrier(workers)
+    with ProcessPoolExecutor(workers, mp_context=context, initializer=_join, initargs=(start_together,)) as pool:
+        return max(pool.map(_yardstick, [frame] * workers))
+
+
+_BARRIER = None
+
+
+def _join(barrier) -> None:
+    """Pool initializer: keep the barrier at which the workers start their rounds together."""
+    global _BARRIER
+    _BARRIER = barrier
+
+
+def _yardstick(frame: Path, rounds: int = 10) -> float:
+    """Mean milliseconds, one thread, of a round of work like a frame's but not granseg's own:
+    decode ``frame`` (a JPEG), blur it, match a 64 px patch over its middle, sort a million numbers."""
+    data = np.frombuffer(frame.read_bytes(), np.uint8)
+    cv2.setNumThreads(1)
+    _BARRIER.wait()
+    start = time.perf_counter()
+    for _ in range(rounds):
+        grey = cv2.cvtColor(cv2.imdecode(data, cv2.IMREAD_COLOR), cv2.COLOR_BGR2GRAY).astype(np.float32)
+        blur = cv2.GaussianBlur(grey, (0, 0), 2.0)
+        h, w = blur.shape
+        middle = blur[h // 4: 3 * h // 4, w // 4: 3 * w // 4]
+        cv2.matchTemplate(middle, middle[:64, :64].copy(), cv2.TM_CCOEFF_NORMED)
+        np.sort(np.random.default_rng(0).random(1_000_000))
+    return 1e3 * (time.perf_counter() - start) / rounds
 
 
 def main() -> None:
@@ -38,14 +86,18 @@ def main() -> None:
         if not (d / "experiment.json").exists() or len(list(d.glob("*.jpg"))) != args.frames:
             render_frames(c, heavy="steel", light="pp", particle_diameter_px=args.diameter,
                           image_size=(1920, 1440), jpeg_quality=90, out_dir=d, force=True)
+        first = sorted(d.glob("*.jpg"))[0]
+        before = yardstick_ms(first, args.workers)
         elapsed = np.inf
         for _ in range(args.repeat):
             start = time.perf_counter()
             a = analyze(d, save=False, progress=False, workers=args.workers)
             elapsed = min(elapsed, time.perf_counter() - start)
+        after = yardstick_ms(first, args.workers)
     per = a.n.sum(axis=1).mean()
     print(f"{args.frames} frames 1920x1440, D = {args.diameter:g} px, {per:.0f} spheres/frame in the window, "
-          f"{args.workers} workers: {elapsed:.2f} s, {args.frames / elapsed:.1f} frames/s")
+          f"{args.workers} workers: {elapsed:.2f} s, {args.frames / elapsed:.1f} frames/s; "
+          f"machine yardstick {before:.0f} ms before, {after:.0f} ms after")
 
 
 if __name__ == "__main__":
