@@ -199,6 +199,20 @@ def test_outline_fit_reports_its_last_step():
     assert np.percentile(settled.step, 90) < 0.1
 
 
+def test_outline_fit_can_keep_the_radius_given():
+    """With free_radius=False the radius stays as given and the centre still finds the disk; given a
+    radius 10 % too small, a free fit grows it back, a kept one does not."""
+    d = 26.0
+    image, centres = _disk_scene(d)
+    start = centres + np.array([1.5, -1.0])
+    small = np.full(len(centres), 0.45 * d)
+    kept = fit_outlines(image.astype(np.float32), start, small, d, free_radius=False)
+    free = fit_outlines(image.astype(np.float32), start, small, d)
+    np.testing.assert_array_equal(kept.radius, small)
+    assert np.median(free.radius) > 0.48 * d
+    assert np.median(np.hypot(*(kept.centres - centres).T)) < 0.3
+
+
 def test_outline_bias_is_what_no_circle_explains():
     """A dip of the residuals on a quarter of the rays is bias; a shift and a radius change are not."""
     theta = 2 * np.pi * np.arange(N_FIT_RAYS) / N_FIT_RAYS

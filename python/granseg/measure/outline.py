@@ -131,7 +131,8 @@ def outline_centres(smooth: np.ndarray, centres: np.ndarray, radii: np.ndarray, 
 
 
 def fit_outlines(smooth: np.ndarray, centres: np.ndarray, radii: np.ndarray, d: float,
-                 iterations: int = 3, n_rays: int = N_FIT_RAYS, ray_bias: np.ndarray | None = None) -> Outlines:
+                 iterations: int = 3, n_rays: int = N_FIT_RAYS, ray_bias: np.ndarray | None = None,
+                 free_radius: bool = True) -> Outlines:
     """Circles about the known radii fitted to the spheres' outlines.
 
     Template peaks and brightness are shifted by shading and highlights, the
@@ -153,6 +154,11 @@ def fit_outlines(smooth: np.ndarray, centres: np.ndarray, radii: np.ndarray, d: 
     taken off before the fit: a sphere's shaded side has no sharp rim, and
     the edge found there lies inside it (:func:`outline_bias`).
 
+    ``free_radius=False`` keeps each radius at ``radii`` and moves the
+    centre only. The detector does not use it: placing the spheres with the
+    nominal radius was measured and dropped (benches/bench_nominal_radius.py,
+    BENCHMARKS.md).
+
     ``smooth`` must show the spheres brighter than their surroundings (the
     detector passes the inverted image when they are darker).
     """
@@ -171,7 +177,7 @@ def fit_outlines(smooth: np.ndarray, centres: np.ndarray, radii: np.ndarray, d: 
     mid = steps[1:-1]
     window = max(3, int(0.3 * d) | 1)  # 0.15 d in 0.5 px samples
     kernel = np.ones(window, np.float32) / window
-    a = np.column_stack([ray, np.ones(n_rays)])[None].repeat(len(c), 0)  # dx, dy, d radius
+    a = np.column_stack([ray, np.full(n_rays, float(free_radius))])[None].repeat(len(c), 0)  # dx, dy, d radius
     band = RIM_SEARCH_PX + RIM_SEARCH_SIZE * radius  # how far from the expected radius the rim may lie
     for _ in range(iterations):
         px = c[:, 0, None, None] + steps[None, None, :] * ray[None, :, 0, None]
