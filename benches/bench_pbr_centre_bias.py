@@ -16,7 +16,10 @@ candidate causes, each measured on its own:
 (c) the detector. The detection error by position on the fixtures (what
     the pipeline's frame worker finds, matched to the truth within 0.3 D),
     the per-frame layer-count error with the detected x or y replaced by
-    the truth (which of the two the count misses come from), and, with
+    the truth (which of the two the count misses come from), the mean y
+    and outward x error by height (two layers at a time), how much further
+    apart lying pairs across the window's middle column are than pairs on
+    one side (detected and true), and, with
     ``--render`` (needs mitsuba, about a minute on two cores), a control:
     the same packing rendered under the fixtures' two side panels, without
     vignetting, with the panels 600 and 1500 mm from the axis instead of 270,
@@ -154,7 +157,47 @@ def detector(folder: Path) -> dict:
             counts[key].append(layer_counts(x, y, np.zeros(len(x), bool), exp.window)[0])
     n = truth.n
     err = {k: round(float(np.mean(np.abs(np.array(v) - n)[n > 0] / n[n > 0])), 4) for k, v in counts.items()}
-    return {"detected_minus_truth": _outward(np.concatenate(rows), exp.window), "frame_layer_count_error": err}
+    rows = np.concatenate(rows)
+    across = {"detected": _across_middle([np.column_stack([s.x, s.y]) for s in found], exp.window, d),
+              "truth": _across_middle([tp[:, :2] for tp in truth.particles], exp.window, d)}
+    return {"detected_minus_truth": _outward(rows, exp.window), "frame_layer_count_error": err,
+            "by_height": _by_height(rows, exp.window), "lying_pairs_across_middle": across}
+
+
+def _across_middle(frames: list[np.ndarray], win, d: float) -> dict:
+    """Median distance [px] of touching lying pairs (line within 26 deg of the horizontal) with one
+    sphere either side of the window's middle column, less that of pairs on one side; and how many
+    pairs across (centres (m, 2) per frame, pairs inside the window)."""
+    x0, y0, x1, y1 = win
+    xm = (x0 + x1) / 2
+    across, same = [], []
+    for pts in frames:
+        pairs = cKDTree(pts).query_pairs(1.12 * d, output_type="ndarray")
+        a, b = pts[pairs[:, 0]], pts[pairs[:, 1]]
+        length = np.hypot(*(b - a).T)
+        lying = np.abs(b[:, 0] - a[:, 0]) > 0.9 * length
+        inside = ((np.minimum(a[:, 0], b[:, 0]) > x0) & (np.maximum(a[:, 0], b[:, 0]) < x1)
+                  & (a[:, 1] > y0) & (a[:, 1] < y1))
+        cross = np.sign(a[:, 0] - xm) != np.sign(b[:, 0] - xm)
+        across.append(length[lying & inside & cross])
+        same.append(length[lying & inside & ~cross])
+    across, same = np.concatenate(across), np.concatenate(same)
+    return {"gap_px": round(float(np.median(across) - np.median(same)), 2), "pairs_across": int(len(across))}
+
+
+def _by_height(rows: np.ndarray, win) -> dict:
+    """Mean y error [px, + down] and outward x error [px] of the spheres in each two layers' band of
+    true height above the plate line; rows: (n, 4) true x, y and error dx, dy."""
+    x0, y0, x1, y1 = win
+    layer = (y1 - rows[:, 1]) / ((y1 - y0) / 15)
+    out = {}
+    for lo in range(0, 15, 2):
+        m = (layer >= lo) & (layer < lo + 2)
+        if m.any():
+            out[f"layers {lo}-{min(lo + 2, 15)}"] = {
+                "spheres": int(m.sum()), "dy_px": round(float(rows[m, 3].mean()), 2),
+                "dx_outward_px": round(float((np.sign(rows[m, 0] - (x0 + x1) / 2) * rows[m, 2]).mean()), 2)}
+    return out
 
 
 def outline_fit(folder: Path) -> dict:
