@@ -46,9 +46,7 @@ from granseg.synth.scenes import render_scene
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_measure_accuracy import score  # noqa: E402
-from bench_pbr_centre_bias import BAND, detections  # noqa: E402
-
-TOUCHING = 1.12  # pair distance [D] up to which two spheres count as touching (outline.TOUCHING)
+from bench_pbr_centre_bias import _outward, detections, touching_pairs  # noqa: E402
 
 
 @contextlib.contextmanager
@@ -80,8 +78,6 @@ def pbr_figures(folder: Path) -> dict:
     """Misses, counts, outward errors, p95 and touching-pair spreads of one physically based look."""
     truth, exp, found = detections(folder)
     d = exp.particle_diameter_px
-    x0, y0, x1, y1 = exp.window
-    xm, ym = (x0 + x1) / 2, (y0 + y1) / 2
     rows, counts, missed, lying, standing = [], [], 0, [], []
     for tp, s in zip(truth.particles, found, strict=True):
         pts = np.column_stack([s.x, s.y])
@@ -91,21 +87,17 @@ def pbr_figures(folder: Path) -> dict:
         counts.append(layer_counts(s.x, s.y, np.zeros(len(s.x), bool), exp.window)[0])
         back, _ = cKDTree(pts).query(tp[tp[:, 4] > 0, :2])
         missed += int((back > 0.3 * d).sum())
-        pairs = cKDTree(pts).query_pairs(TOUCHING * d, output_type="ndarray")
-        v = pts[pairs[:, 1]] - pts[pairs[:, 0]]
-        length = np.hypot(*v.T) / d
-        flat = np.abs(v[:, 0]) / np.maximum(length * d, 1e-9)
-        lying.append(length[flat > 0.9])
-        standing.append(length[flat < 0.6])
-    e = np.concatenate(rows)
+        a, b, length = touching_pairs(pts, d)
+        flat = np.abs(b[:, 0] - a[:, 0]) / np.maximum(length, 1e-9)
+        lying.append(length[flat > 0.9] / d)
+        standing.append(length[flat < 0.6] / d)
+    rows = np.concatenate(rows)
     n = truth.n
-    side = np.abs(e[:, 0] - xm) > (x1 - x0) / 2 - BAND
-    top_bottom = np.abs(e[:, 1] - ym) > (y1 - y0) / 2 - BAND
+    outward = _outward(rows, exp.window)
     return {"missed": missed,
             "frame_layer_count_error": round(float(np.mean(np.abs(np.array(counts) - n)[n > 0] / n[n > 0])), 4),
-            "x_outward_sides_px": round(float((np.sign(e[side, 0] - xm) * e[side, 2]).mean()), 2),
-            "y_outward_top_bottom_px": round(float((np.sign(e[top_bottom, 1] - ym) * e[top_bottom, 3]).mean()), 2),
-            "p95_px": round(float(np.percentile(np.hypot(e[:, 2], e[:, 3]), 95)), 2),
+            "x_outward_sides_px": outward["x_sides"], "y_outward_top_bottom_px": outward["y_top_bottom"],
+            "p95_px": round(float(np.percentile(np.hypot(rows[:, 2], rows[:, 3]), 95)), 2),
             "pair_spread_lying_d": round(_mad(np.concatenate(lying)), 4),
             "pair_spread_standing_d": round(_mad(np.concatenate(standing)), 4)}
 

@@ -50,6 +50,7 @@ import granseg.measure.pipeline as pipeline
 from granseg._io import save_json
 from granseg.measure.experiment import load_experiment
 from granseg.measure.layers import in_window, layer_counts
+from granseg.measure.outline import TOUCHING
 from granseg.synth.pbr import _Cell, load_fixture
 
 PBR = Path(__file__).resolve().parents[1] / "tests" / "fixtures" / "pbr"
@@ -164,6 +165,14 @@ def detector(folder: Path) -> dict:
             "by_height": _by_height(rows, exp.window), "lying_pairs_across_middle": across}
 
 
+def touching_pairs(pts: np.ndarray, d: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The two ends (k, 2) and (k, 2) and the length [px] (k,) of every pair of ``pts`` (m, 2) closer
+    than outline.TOUCHING diameters ``d``."""
+    pairs = cKDTree(pts).query_pairs(TOUCHING * d, output_type="ndarray")
+    a, b = pts[pairs[:, 0]], pts[pairs[:, 1]]
+    return a, b, np.hypot(*(b - a).T)
+
+
 def _across_middle(frames: list[np.ndarray], win, d: float) -> dict:
     """Median distance [px] of touching lying pairs (line within 26 deg of the horizontal) with one
     sphere either side of the window's middle column, less that of pairs on one side; and how many
@@ -172,9 +181,7 @@ def _across_middle(frames: list[np.ndarray], win, d: float) -> dict:
     xm = (x0 + x1) / 2
     across, same = [], []
     for pts in frames:
-        pairs = cKDTree(pts).query_pairs(1.12 * d, output_type="ndarray")
-        a, b = pts[pairs[:, 0]], pts[pairs[:, 1]]
-        length = np.hypot(*(b - a).T)
+        a, b, length = touching_pairs(pts, d)
         lying = np.abs(b[:, 0] - a[:, 0]) > 0.9 * length
         inside = ((np.minimum(a[:, 0], b[:, 0]) > x0) & (np.maximum(a[:, 0], b[:, 0]) < x1)
                   & (a[:, 1] > y0) & (a[:, 1] < y1))
