@@ -62,6 +62,7 @@ from __future__ import annotations
 import argparse
 import glob
 import json
+import logging
 import os
 import re
 import sys
@@ -76,6 +77,8 @@ import numpy as np
 from granseg._io import atomic_path, atomic_write, save_json
 from granseg.synth.frames import MATERIAL_LOOKS, RenderedFrames, _Bed, _check_map
 from granseg.synth.frames import _experiment as frame_experiment
+
+log = logging.getLogger(__name__)
 
 __all__ = ["FIXTURE_LOOKS", "PBR_MATERIALS", "PbrFrames", "fixture_map", "load_fixture", "render_fixtures",
            "render_pbr_frames"]
@@ -432,6 +435,12 @@ def _mitsuba(variant: str | None):
                           "(or granseg[pbr])") from exc
     if variant is None:
         variant = "llvm_ad_rgb" if os.environ.get("DRJIT_LIBLLVM_PATH") else "scalar_rgb"
+        if variant == "scalar_rgb":
+            # Said aloud because the fallback is silent otherwise: a 90 s fixture
+            # render ran 18 minutes on a machine without a recent libLLVM.
+            log.warning("no libLLVM >= %d found: mitsuba renders with its scalar variant, "
+                        "about 12x slower (install one, e.g. apt-get install libllvm19, or set "
+                        "DRJIT_LIBLLVM_PATH)", MIN_LLVM)
     mi.set_variant(variant)
     if variant not in _REGISTERED:
         cls = _wall_camera_class(mi)
