@@ -25,13 +25,25 @@ of the error matters): every centre moved by the run's mean dh; by its
 class's mean dh; every centre's height averaged with its matches in the
 neighbouring frames (within 0.1 D, up to ``--window`` frames either way),
 which cuts the scatter from frame to frame and keeps the rest.
+
+``--variants`` renders every scene once per named set of render settings
+(as in ``bench_measure_accuracy.py``), the same packing each time: e.g. a
+lossy-video scene with its video switched off tells the codec's share of
+the error from the look's::
+
+    PYTHONPATH=python python benches/bench_layer_flips.py --scenes apparatus-S-POM-25-mp4v \
+        apparatus-C-PP-50-h264 --seeds 7 8 \
+        --variants '{"as-rendered": {}, "lossless": {"video": null}}'
 """
 
 from __future__ import annotations
 
 import argparse
+import itertools
+import sys
 import tempfile
 import warnings
+from pathlib import Path
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -39,6 +51,9 @@ from scipy.spatial import cKDTree
 from granseg.measure import analyze
 from granseg.measure.layers import height, in_window, layer_index
 from granseg.synth.scenes import render_scene
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from bench_measure_accuracy import _variants  # noqa: E402
 
 
 def _count_error(n: np.ndarray, truth: np.ndarray) -> float:
@@ -84,10 +99,10 @@ def _time_averaged(spheres, d: float, k: int) -> list[np.ndarray]:
     return out
 
 
-def one_run(scene: str, seed: int, window: int) -> dict:
+def one_run(scene: str, seed: int, window: int, changes: dict | None = None) -> dict:
     with tempfile.TemporaryDirectory() as tmp, warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        r = render_scene(scene, 6, seed=seed, out_dir=tmp)
+        r = render_scene(scene, 6, seed=seed, out_dir=tmp, **(changes or {}))
         a = analyze(r.source, smooth=1, save=False, progress=False, workers=2)
     win, d = r.experiment["window"], r.experiment["particle_diameter_px"]
     p0 = r.particles[0]
@@ -131,13 +146,17 @@ def main() -> None:
     ap.add_argument("--scenes", nargs="+", required=True)
     ap.add_argument("--seeds", nargs="+", type=int, default=[7, 8])
     ap.add_argument("--window", type=int, default=2, help="frames either way averaged by the time oracle")
+    ap.add_argument("--variants", type=_variants, default={"": {}}, metavar="JSON",
+                    help="render every scene once per variant: a JSON object {name: {setting: value}} "
+                         "(or a .json file holding one)")
     args = ap.parse_args()
-    print("scene                              seed  dh [D]: run  heavy  light | sd within between |"
+    print("scene                                        seed  dh [D]: run  heavy  light | sd within between |"
           " shift [D]: read  true | count: as is  shift put back  run-mean  class-mean  time-avg")
     for scene in args.scenes:
-        for seed in args.seeds:
-            o = one_run(scene, seed, args.window)
-            print(f"{scene:34s} {seed:4d}  {o['dh_mean']:+.4f} {o['dh_heavy']:+.4f} {o['dh_light']:+.4f} | "
+        for (variant, changes), seed in itertools.product(args.variants.items(), args.seeds):
+            o = one_run(scene, seed, args.window, changes)
+            name = f"{scene}+{variant}" if variant else scene
+            print(f"{name:44s} {seed:4d}  {o['dh_mean']:+.4f} {o['dh_heavy']:+.4f} {o['dh_light']:+.4f} | "
                   f"{o['within_sphere_sd']:.4f} {o['between_sphere_sd']:.4f} | "
                   f"{o['shift_read']:+.4f} {o['shift_true']:+.4f} | {o['count']:.3f}  {o['count_shift_put_back']:.3f}  "
                   f"{o['count_run_mean_removed']:.3f}  {o['count_class_mean_removed']:.3f}  "
