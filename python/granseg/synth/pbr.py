@@ -435,7 +435,7 @@ def _mitsuba(variant: str | None):
                           "(or granseg[pbr])") from exc
     if variant is None:
         variant = "llvm_ad_rgb" if os.environ.get("DRJIT_LIBLLVM_PATH") else "scalar_rgb"
-        if variant == "scalar_rgb":
+        if variant == "scalar_rgb" and variant not in _REGISTERED:  # once a process, not per look
             # Said aloud because the fallback is silent otherwise: a 90 s fixture
             # render ran 18 minutes on a machine without a recent libLLVM.
             log.warning("no libLLVM >= %d found: mitsuba renders with its scalar variant, "
