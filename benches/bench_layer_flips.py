@@ -26,6 +26,11 @@ class's mean dh; every centre's height averaged with its matches in the
 neighbouring frames (within 0.1 D, up to ``--window`` frames either way),
 which cuts the scatter from frame to frame and keeps the rest.
 
+Last, without truth: the scatter of the still spheres' heights from frame to
+frame [px] and the count error it alone would cause (each sphere's normal
+chance of crossing its layer's boundaries; :func:`_predicted_count_error`),
+set beside the count error found, to see whether a run could tell its own.
+
 ``--variants`` renders every scene once per named set of render settings
 (as in ``bench_measure_accuracy.py``), the same packing each time: e.g. a
 lossy-video scene with its video switched off tells the codec's share of
@@ -47,6 +52,7 @@ from pathlib import Path
 
 import numpy as np
 from scipy.spatial import cKDTree
+from scipy.stats import norm
 
 from granseg.measure import analyze
 from granseg.measure.layers import height, in_window, layer_index
@@ -68,13 +74,51 @@ def _counts(spheres, ys, window) -> np.ndarray:
     return np.array(rows)
 
 
-def _time_averaged(spheres, d: float, k: int) -> list[np.ndarray]:
-    """Each sphere's y averaged with its still matches (< 0.1 D apart) up to k frames either way."""
-    n_t = len(spheres)
+def _still_links(spheres, d: float) -> list[np.ndarray]:
+    """Per pair of neighbouring frames, each sphere's match in the next frame if it lies within 0.1 D
+    (it stood still), else -1."""
     ahead = []
     for s0, s1 in zip(spheres[:-1], spheres[1:], strict=True):
         dist, j = cKDTree(np.column_stack([s1.x, s1.y])).query(np.column_stack([s0.x, s0.y]))
         ahead.append(np.where(dist < 0.1 * d, j, -1))
+    return ahead
+
+
+def _predicted_count_error(spheres, window, d: float, n_layers: int = 15) -> tuple[float, float]:
+    """What the counts' error would be if the centres' only error were their scatter from frame to
+    frame (no truth read): sigma [px], the robust sd of the still spheres' height steps over sqrt 2,
+    and the mean over layers and frames of E|n - n_true| / n, each sphere leaving its layer for the
+    next with the normal chance of an error reaching that boundary (a sum of independent flips,
+    taken as normal)."""
+    steps = [s1.y[j[j >= 0]] - s0.y[j >= 0] for s0, s1, j in zip(spheres[:-1], spheres[1:], _still_links(spheres, d),
+                                                                   strict=True)]
+    dy = np.concatenate(steps)
+    sigma = 1.4826 * float(np.median(np.abs(dy - np.median(dy)))) / np.sqrt(2)
+    layer_px = (window[3] - window[1]) / n_layers
+    errors = []
+    for s in spheres:
+        h = height(s.y[in_window(s.x, s.y, window)], window, n_layers)
+        j = np.clip(np.floor(h).astype(int), 0, n_layers - 1)
+        up = norm.sf((j + 1 - h) * layer_px / sigma) * (j < n_layers - 1)
+        down = norm.sf((h - j) * layer_px / sigma) * (j > 0)
+        n = np.bincount(j, minlength=n_layers)
+        net = np.bincount(j, -(up + down), minlength=n_layers)  # expected change of each layer's count
+        var = np.bincount(j, (up + down) * (1 - up - down), minlength=n_layers)
+        net[1:] += np.bincount(j, up, minlength=n_layers)[:-1]
+        net[:-1] += np.bincount(j, down, minlength=n_layers)[1:]
+        var[1:] += np.bincount(j, up * (1 - up), minlength=n_layers)[:-1]
+        var[:-1] += np.bincount(j, down * (1 - down), minlength=n_layers)[1:]
+        # E|X| of a normal X with mean net and variance var (the folded normal's mean)
+        sd = np.sqrt(np.maximum(var, 1e-12))
+        expected = sd * np.sqrt(2 / np.pi) * np.exp(-net ** 2 / (2 * sd ** 2)) + net * (1 - 2 * norm.cdf(-net / sd))
+        errors.append(expected[n > 0] / n[n > 0])
+    return sigma, float(np.mean(np.concatenate(errors)))
+
+
+def _time_averaged(spheres, d: float, k: int) -> list[np.ndarray]:
+    """Each sphere's y averaged with its still matches (< 0.1 D apart) up to k frames either way."""
+    n_t = len(spheres)
+    ahead = _still_links(spheres, d)
     behind = []
     for i, a in enumerate(ahead):
         b = np.full(len(spheres[i + 1].x), -1)
@@ -138,6 +182,7 @@ def one_run(scene: str, seed: int, window: int, changes: dict | None = None) -> 
         "count_class_mean_removed": _count_error(_counts(
             a.spheres, [shift(s, np.where(s.heavy, mean_h, mean_l)) for s in a.spheres], win), r.n),
         "count_time_averaged": _count_error(_counts(a.spheres, _time_averaged(a.spheres, d, window), win), r.n),
+        **dict(zip(("scatter_px", "count_predicted"), _predicted_count_error(a.spheres, win, d), strict=True)),
     }
 
 
@@ -151,7 +196,8 @@ def main() -> None:
                          "(or a .json file holding one)")
     args = ap.parse_args()
     print("scene                                        seed  dh [D]: run  heavy  light | sd within between |"
-          " shift [D]: read  true | count: as is  shift put back  run-mean  class-mean  time-avg")
+          " shift [D]: read  true | count: as is  shift put back  run-mean  class-mean  time-avg |"
+          " scatter [px], count predicted from it")
     for scene in args.scenes:
         for (variant, changes), seed in itertools.product(args.variants.items(), args.seeds):
             o = one_run(scene, seed, args.window, changes)
@@ -160,7 +206,7 @@ def main() -> None:
                   f"{o['within_sphere_sd']:.4f} {o['between_sphere_sd']:.4f} | "
                   f"{o['shift_read']:+.4f} {o['shift_true']:+.4f} | {o['count']:.3f}  {o['count_shift_put_back']:.3f}  "
                   f"{o['count_run_mean_removed']:.3f}  {o['count_class_mean_removed']:.3f}  "
-                  f"{o['count_time_averaged']:.3f}", flush=True)
+                  f"{o['count_time_averaged']:.3f} | {o['scatter_px']:.2f} {o['count_predicted']:.3f}", flush=True)
 
 
 if __name__ == "__main__":
