@@ -30,6 +30,11 @@ Last, without truth: the scatter of the still spheres' heights from frame to
 frame [px] and the count error it alone would cause (each sphere's normal
 chance of crossing its layer's boundaries; :func:`_predicted_count_error`),
 set beside the count error found, to see whether a run could tell its own.
+``--pbr FOLDER --looks ...`` gives those two and the count error found for
+physically based looks (``python -m granseg.synth.pbr fixtures FOLDER``;
+their frames are new packings, so the other columns do not apply)::
+
+    PYTHONPATH=python python benches/bench_layer_flips.py --pbr /tmp/pbr-tune --looks ceramic-pom pom-pp
 
 ``--variants`` renders every scene once per named set of render settings
 (as in ``bench_measure_accuracy.py``), the same packing each time: e.g. a
@@ -52,10 +57,11 @@ from pathlib import Path
 
 import numpy as np
 from scipy.spatial import cKDTree
-from scipy.stats import norm
+from scipy.stats import foldnorm, norm
 
 from granseg.measure import analyze
 from granseg.measure.layers import height, in_window, layer_index
+from granseg.synth.pbr import load_fixture
 from granseg.synth.scenes import render_scene
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -101,16 +107,13 @@ def _predicted_count_error(spheres, window, d: float, n_layers: int = 15) -> tup
         j = np.clip(np.floor(h).astype(int), 0, n_layers - 1)
         up = norm.sf((j + 1 - h) * layer_px / sigma) * (j < n_layers - 1)
         down = norm.sf((h - j) * layer_px / sigma) * (j > 0)
-        n = np.bincount(j, minlength=n_layers)
-        net = np.bincount(j, -(up + down), minlength=n_layers)  # expected change of each layer's count
-        var = np.bincount(j, (up + down) * (1 - up - down), minlength=n_layers)
-        net[1:] += np.bincount(j, up, minlength=n_layers)[:-1]
-        net[:-1] += np.bincount(j, down, minlength=n_layers)[1:]
-        var[1:] += np.bincount(j, up * (1 - up), minlength=n_layers)[:-1]
-        var[:-1] += np.bincount(j, down * (1 - down), minlength=n_layers)[1:]
-        # E|X| of a normal X with mean net and variance var (the folded normal's mean)
-        sd = np.sqrt(np.maximum(var, 1e-12))
-        expected = sd * np.sqrt(2 / np.pi) * np.exp(-net ** 2 / (2 * sd ** 2)) + net * (1 - 2 * norm.cdf(-net / sd))
+        per_layer = lambda w, j=j: np.bincount(j, w, minlength=n_layers)  # noqa: E731
+        n = per_layer(None)
+        # a layer's count loses its leavers and gains its neighbours' arrivals: mean and variance
+        net = -per_layer(up + down) + np.r_[0, per_layer(up)[:-1]] + np.r_[per_layer(down)[1:], 0]
+        var = (per_layer((up + down) * (1 - up - down)) + np.r_[0, per_layer(up * (1 - up))[:-1]]
+               + np.r_[per_layer(down * (1 - down))[1:], 0])
+        expected = foldnorm.mean(np.abs(net) / np.sqrt(var + 1e-12), scale=np.sqrt(var + 1e-12))  # E|change|
         errors.append(expected[n > 0] / n[n > 0])
     return sigma, float(np.mean(np.concatenate(errors)))
 
@@ -186,15 +189,37 @@ def one_run(scene: str, seed: int, window: int, changes: dict | None = None) -> 
     }
 
 
+def pbr_run(folder: Path, look: str) -> dict:
+    """The truth-free scatter, the count error it predicts and the count error found, of one
+    physically based look."""
+    truth = load_fixture(folder / look)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        a = analyze(folder / look, smooth=1, save=False, progress=False, workers=2)
+    window, d = a.experiment.window, a.experiment.particle_diameter_px
+    sigma, predicted = _predicted_count_error(a.spheres, window, d, truth.n.shape[1])
+    return {"look": look, "scatter_px": sigma, "count_predicted": predicted, "count": _count_error(a.n, truth.n)}
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--scenes", nargs="+", required=True)
+    ap.add_argument("--scenes", nargs="+", default=[])
+    ap.add_argument("--pbr", type=Path, help="a folder of physically based looks (with --looks)")
+    ap.add_argument("--looks", nargs="+", default=[])
     ap.add_argument("--seeds", nargs="+", type=int, default=[7, 8])
     ap.add_argument("--window", type=int, default=2, help="frames either way averaged by the time oracle")
     ap.add_argument("--variants", type=_variants, default={"": {}}, metavar="JSON",
                     help="render every scene once per variant: a JSON object {name: {setting: value}} "
                          "(or a .json file holding one)")
     args = ap.parse_args()
+    if not args.scenes and not (args.pbr and args.looks):
+        ap.error("give --scenes, or --pbr FOLDER with --looks")
+    for look in args.looks if args.pbr else []:
+        o = pbr_run(args.pbr, look)
+        print(f"{look:20s} scatter {o['scatter_px']:.2f} px  count predicted {o['count_predicted']:.3f}  "
+              f"found {o['count']:.3f}", flush=True)
+    if not args.scenes:
+        return
     print("scene                                        seed  dh [D]: run  heavy  light | sd within between |"
           " shift [D]: read  true | count: as is  shift put back  run-mean  class-mean  time-avg |"
           " scatter [px], count predicted from it")
