@@ -60,24 +60,12 @@ from scipy.spatial import cKDTree
 from scipy.stats import foldnorm, norm
 
 from granseg.measure import analyze
-from granseg.measure.layers import height, in_window, layer_index
+from granseg.measure.layers import height, in_window
 from granseg.synth.pbr import load_fixture
 from granseg.synth.scenes import render_scene
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_measure_accuracy import _variants  # noqa: E402
-
-
-def _count_error(n: np.ndarray, truth: np.ndarray) -> float:
-    return float(np.mean(np.abs(n - truth)[truth > 0] / truth[truth > 0]))
-
-
-def _counts(spheres, ys, window) -> np.ndarray:
-    rows = []
-    for s, y in zip(spheres, ys, strict=True):
-        inside = in_window(s.x, y, window)
-        rows.append(np.bincount(layer_index(y[inside], window), minlength=15))
-    return np.array(rows)
+from bench_measure_accuracy import _variants, frame_count_error, recount  # noqa: E402
 
 
 def _still_links(spheres, d: float) -> list[np.ndarray]:
@@ -178,13 +166,13 @@ def one_run(scene: str, seed: int, window: int, changes: dict | None = None) -> 
         "within_sphere_sd": float((table - table.mean(axis=1, keepdims=True)).std()),
         "between_sphere_sd": float(table.mean(axis=1).std()),
         "shift_read": float(taken), "shift_true": mean_l - mean_h + float(taken),
-        "count": _count_error(a.n, r.n),
-        "count_shift_put_back": _count_error(_counts(
+        "count": frame_count_error(a.n, r.n),
+        "count_shift_put_back": frame_count_error(recount(
             a.spheres, [shift(s, np.where(s.heavy, 0.5, -0.5) * taken) for s in a.spheres], win), r.n),
-        "count_run_mean_removed": _count_error(_counts(a.spheres, [shift(s, dh.mean()) for s in a.spheres], win), r.n),
-        "count_class_mean_removed": _count_error(_counts(
+        "count_run_mean_removed": frame_count_error(recount(a.spheres, [shift(s, dh.mean()) for s in a.spheres], win), r.n),
+        "count_class_mean_removed": frame_count_error(recount(
             a.spheres, [shift(s, np.where(s.heavy, mean_h, mean_l)) for s in a.spheres], win), r.n),
-        "count_time_averaged": _count_error(_counts(a.spheres, _time_averaged(a.spheres, d, window), win), r.n),
+        "count_time_averaged": frame_count_error(recount(a.spheres, _time_averaged(a.spheres, d, window), win), r.n),
         **dict(zip(("scatter_px", "count_predicted"), _predicted_count_error(a.spheres, win, d), strict=True)),
     }
 
@@ -198,7 +186,7 @@ def pbr_run(folder: Path, look: str) -> dict:
         a = analyze(folder / look, smooth=1, save=False, progress=False, workers=2)
     window, d = a.experiment.window, a.experiment.particle_diameter_px
     sigma, predicted = _predicted_count_error(a.spheres, window, d, truth.n.shape[1])
-    return {"look": look, "scatter_px": sigma, "count_predicted": predicted, "count": _count_error(a.n, truth.n)}
+    return {"look": look, "scatter_px": sigma, "count_predicted": predicted, "count": frame_count_error(a.n, truth.n)}
 
 
 def main() -> None:

@@ -72,10 +72,9 @@ def score(r, a) -> dict:
         back, _ = cKDTree(det).query(truth[truth[:, 4] > 0, :2])
         fn += int((back > 0.3 * d).sum())
     count = np.abs(a.n.sum(axis=0) - r.n.sum(axis=0)) / r.n.sum(axis=0)
-    per_frame = np.abs(a.n - r.n)[r.n > 0] / r.n[r.n > 0]
     out = {"recall": 1 - fn / int(r.n.sum()), "precision": tp / (tp + fp), "wrong_class": wrong / max(tp, 1),
            "rmsd": float(np.sqrt(np.nanmean((a.c_raw - r.c_raw) ** 2))),
-           "frame_layer_count_error": float(per_frame.mean()),
+           "frame_layer_count_error": frame_count_error(a.n, r.n),
            "worst_layer_count_error": float(count.max()), "worst_layer": int(count.argmax()),
            "quality_ok": bool(a.quality.ok), "failed_checks": [c.name for c in a.quality.failed],
            "centres_settled": next((c.value for c in a.quality.checks if c.name == "centres_settled"), None),
@@ -106,9 +105,17 @@ def _wall_shifted_count_error(r, a) -> float:
         return float("nan")
     window = a.experiment.window
     px = (window[3] - window[1]) / N_LAYERS
-    n = np.array([layer_counts(s.x, s.y + shift * px, s.heavy, window)[0] for s in a.spheres])
-    ok = r.n > 0
-    return float(np.mean(np.abs(n - r.n)[ok] / r.n[ok]))
+    return frame_count_error(recount(a.spheres, [s.y + shift * px for s in a.spheres], window), r.n)
+
+
+def frame_count_error(n: np.ndarray, truth: np.ndarray) -> float:
+    """Mean over frames and layers of |n - n_true| / n_true (layers the truth leaves empty skipped)."""
+    return float(np.mean(np.abs(n - truth)[truth > 0] / truth[truth > 0]))
+
+
+def recount(spheres, ys, window) -> np.ndarray:
+    """(n_t, N_LAYERS) spheres per frame and layer had each frame's centres the heights ``ys``."""
+    return np.array([layer_counts(s.x, y, s.heavy, window)[0] for s, y in zip(spheres, ys, strict=True)])
 
 
 def _wall_shift_summary(results: dict) -> str:
