@@ -110,8 +110,8 @@ def test_colour_ranges_override_learning(tmp_path, ranges, inverted):
 NOT_YET = {
     # spheres hanging under the lid's bumps sit exactly on a layer boundary
     # (14.00 d) and MPEG-4 blurs the polished steel's outline by a few tenths
-    # of a pixel either way (seeds 9-12: c_raw RMSD 0.007-0.034, per-frame
-    # layer counts 2.8-5.9 %)
+    # of a pixel either way (seeds 9-12: c_raw RMSD 0.007-0.032, per-frame
+    # layer counts 2.8-6.1 %)
     "apparatus-S-POM-25-mp4v": "spheres on a layer boundary under the lid's bumps, MPEG-4",
 }
 

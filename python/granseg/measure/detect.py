@@ -44,7 +44,13 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from granseg.measure.outline import N_FIT_RAYS, fit_outlines, outline_bias, refine_circles
-from granseg.measure.templates import Templates, build_templates, find_spheres, join_templates
+from granseg.measure.templates import (
+    Templates,
+    build_templates,
+    find_spheres,
+    join_templates,
+    with_columns,
+)
 
 __all__ = ["Templates", "detect_particles", "learn_templates", "to_gray"]
 
@@ -90,6 +96,7 @@ MIN_CONFIRMED = 30  # confirmed spheres a group needs for rim limits of its own 
 # of the fit: 2-D apparatus scenes, seeds 7-8, per-frame layer counts 2.16 /
 # 2.19 %).
 BIAS_ROUNDS = 2
+COLUMN_ROUNDS = 2  # learnings of the look across the view (learn_templates)
 
 
 def to_gray(image: np.ndarray) -> np.ndarray:
@@ -154,7 +161,30 @@ def _polarity(image: np.ndarray, candidates: dict[int, np.ndarray], d: float) ->
 
 def learn_templates(image: np.ndarray, particle_diameter_px: float,
                     bands: tuple[tuple[float, float], tuple[float, float]] | None = None) -> Templates | None:
-    """Learn the spheres' appearances from one image (None if it shows fewer than 3 spheres).
+    """Learn the spheres' appearances from one image (None if it shows fewer than 3 spheres): the
+    templates :func:`_choose_templates` keeps, then each group's look across the view
+    (:func:`granseg.measure.templates.with_columns`), from the spheres they find in ``image``.
+
+    The look across the view is learned twice, the second time from the
+    spheres found with the first: those near the sides that the frame-wide
+    templates missed then join in. It comes after the choice of templates
+    so that the choice is made as it was without it (the polarities and the
+    borrowed sets were settled on the frame-wide templates).
+    """
+    d = float(particle_diameter_px)
+    templates = _choose_templates(image, d, bands)
+    if templates is None:
+        return None
+    smooth = _smooth(image, d, templates.signs)
+    across = templates
+    for _ in range(COLUMN_ROUNDS):
+        across = with_columns(smooth, templates, detect_particles(image, d, across, details=True))
+    return across
+
+
+def _choose_templates(image: np.ndarray, d: float,
+                      bands: tuple[tuple[float, float], tuple[float, float]] | None = None) -> Templates | None:
+    """The frame-wide templates of one image (None if it shows fewer than 3 spheres).
 
     ``bands``: two row ranges (top, bottom) [px] of ``image`` each known to
     hold the centres of spheres of one material only (the first frame of a
@@ -189,7 +219,6 @@ def learn_templates(image: np.ndarray, particle_diameter_px: float,
     alone, were up to 2 px off for dark POM, from where the fit sometimes
     went astray; issue 3).
     """
-    d = float(particle_diameter_px)
     candidates = _candidates(to_gray(image), d)
     sign, seeds = _polarity(image, candidates, d)
     one = _with_rims(image, _templates_from_seeds(image, seeds, d, sign), seeds) if len(seeds) >= 3 else None

@@ -11,18 +11,23 @@ as one ghost between them (issue 3). Every local maximum of the best
 correlation is a candidate; each is then given the template of the group
 its colour belongs to, placed at the best match of that template nearby,
 and kept if its disk looks like that group's spheres.
+
+A sphere's look changes across the view: lamps beside the camera light the
+spheres at the window's left on their left and those at its right on their
+right, and spheres seen off the axis show other parts of themselves. A
+group's template may therefore change with x (:func:`with_columns`).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
 
 from granseg.measure.outline import ring_centre
 
-__all__ = ["DiskScores", "Templates", "build_templates", "find_spheres", "join_templates"]
+__all__ = ["DiskScores", "Templates", "build_templates", "find_spheres", "join_templates", "with_columns"]
 
 TEMPLATE_HALF = 0.75  # template half-size [d]: the sphere, its outline and the gaps around it
 DISK = 1.05  # radius of the matched disk [sphere radii]: the sphere and its outline
@@ -30,6 +35,10 @@ MIN_SCORE = 0.2  # correlation below which no local maximum is a candidate
 KEEP = 0.5  # spheres matching worse than this share of their group's median are dropped
 SEARCH_PX = 3  # how far a candidate may move to its own group's best match [px of the match scale]
 MATCH_DIAMETER_PX = 32.0  # the disk correlation runs where spheres are at most this wide
+# A group's look across the view (with_columns): a quadratic in x, fitted to
+# at least COLUMN_MIN_SPHERES of its spheres, matched in COLUMNS columns.
+COLUMNS = 8
+COLUMN_MIN_SPHERES = 32
 
 
 @dataclass(frozen=True)
@@ -50,7 +59,10 @@ class Templates:
     (see :func:`granseg.measure.detect.learn_templates`), None for all False;
     ray_bias: (k, N_FIT_RAYS) per group, where the outline fit's edge finder
     puts each ray's edge outside the true outline [px]
-    (:func:`granseg.measure.outline.outline_bias`), None for none.
+    (:func:`granseg.measure.outline.outline_bias`), None for none;
+    by_column: per group, None or (edges (COLUMNS - 1,) [px], patches (COLUMNS,
+    side, side)): its template in each column of the view, the columns
+    split at ``edges`` in x (:func:`with_columns`); None for none.
     """
 
     patches: tuple[np.ndarray, ...]
@@ -63,6 +75,7 @@ class Templates:
     rim_limits: np.ndarray | None = None
     by_match: np.ndarray | None = None
     ray_bias: np.ndarray | None = None
+    by_column: tuple[tuple[np.ndarray, np.ndarray] | None, ...] | None = None
 
     @property
     def half(self) -> int:
@@ -107,6 +120,42 @@ def build_templates(smooth: np.ndarray, image: np.ndarray, centres: np.ndarray, 
         disks.append(_disk(size, offset, DISK * r))
     return Templates(tuple(means), np.array(offsets, dtype=float), np.array(radii, dtype=float),
                      np.array(mean_colours, dtype=float), tuple(disks), float(d), np.full(len(means), int(sign)))
+
+
+def with_columns(smooth: dict[int, np.ndarray], templates: Templates, spheres: np.ndarray) -> Templates:
+    """``templates`` with each group's look across the view, learned from ``spheres`` (m, >= 5: x, y,
+    radius, correlation, group) found in the image whose grey versions by sign are ``smooth``.
+
+    Pixel by pixel, the patches cut around a group's spheres are fitted by
+    least squares as a quadratic in the spheres' x; the fit is evaluated in
+    the middle of each of COLUMNS equal columns of their x range, and each
+    column is matched with its own (:meth:`DiskScores.of`). Groups with fewer
+    than COLUMN_MIN_SPHERES spheres keep one template. A fit, not a mean per
+    column: the spheres near the window's sides are the ones the frame-wide
+    template misses (physically based steel over PP under its side panels:
+    most PP spheres of the window's outer eighth), so a column's own spheres
+    are too few to learn from, while the trend of those found further in
+    carries to it (BENCHMARKS.md, "A sphere's look across the view").
+    """
+    size = 2 * templates.half + 1
+    by_column: list[tuple[np.ndarray, np.ndarray] | None] = []
+    for g in range(len(templates.patches)):
+        mine = spheres[spheres[:, 4] == g]
+        if len(mine) < COLUMN_MIN_SPHERES:
+            by_column.append(None)
+            continue
+        image = smooth[int(templates.signs[g])]
+        patches = np.stack([cv2.getRectSubPix(image, (size, size), (float(x), float(y))) for x, y in mine[:, :2]])
+        lo, hi = float(mine[:, 0].min()), float(mine[:, 0].max())
+        mid, half_width = (lo + hi) / 2, max((hi - lo) / 2, 1.0)
+        u = (mine[:, 0] - mid) / half_width
+        coef, *_ = np.linalg.lstsq(np.column_stack([np.ones_like(u), u, u * u]), patches.reshape(len(mine), -1),
+                                   rcond=None)
+        edges = np.linspace(lo, hi, COLUMNS + 1)
+        centre = ((edges[:-1] + edges[1:]) / 2 - mid) / half_width
+        looks = (np.column_stack([np.ones_like(centre), centre, centre * centre]) @ coef).reshape(COLUMNS, size, size)
+        by_column.append((edges[1:-1], looks.astype(np.float32)))
+    return replace(templates, by_column=tuple(by_column) if any(c is not None for c in by_column) else None)
 
 
 def _disk(size: int, offset, radius: float) -> np.ndarray:
@@ -213,9 +262,30 @@ class DiskScores:
                 image = cv2.resize(image, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA)
             padded[sign] = cv2.copyMakeBorder(image, pad, pad, pad, pad, cv2.BORDER_REPLICATE)
             padded[sign] -= padded[sign].mean()  # keeps the float32 sums of squares precise
-        maps = np.stack([_masked_correlation(padded[int(s)], t, m)
-                         for t, m, s in zip(patches, disks, templates.signs, strict=True)])
-        return cls(maps, pad, half, scale)
+        columns = templates.by_column or (None,) * len(patches)
+        geometry = cls(np.zeros((0, 1, 1), np.float32), pad, half, scale)  # map <-> image coordinates
+        maps = []
+        for g, (t, m, s, part) in enumerate(zip(patches, disks, templates.signs, columns, strict=True)):
+            image = padded[int(s)]
+            if part is None:
+                maps.append(_masked_correlation(image, t, m))
+                continue
+            # each column of the map correlated with its own column's template,
+            # on the strip of the image that column's matches cover
+            edges, looks = part
+            spread = _masked_spread(image, m)
+            cols = np.arange(spread.shape[1], dtype=float)
+            x, _ = geometry.to_image(cols, cols, np.repeat(templates.offsets[g:g + 1], len(cols), axis=0))
+            column = np.searchsorted(edges, x)
+            out = np.empty_like(spread)
+            for c in np.unique(column):
+                first, last = np.flatnonzero(column == c)[[0, -1]]
+                look = looks[c] if small_size == size else cv2.resize(looks[c], (small_size, small_size),
+                                                                      interpolation=cv2.INTER_AREA)
+                out[:, first:last + 1] = _masked_correlation(image[:, first:last + small_size], look, m,
+                                                             spread[:, first:last + 1])
+            maps.append(out)
+        return replace(geometry, maps=np.stack(maps))
 
     def to_image(self, col: np.ndarray, row: np.ndarray, offset: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Sphere centre (x, y) [px] for a (sub-pixel) map position and its group's offset (m, 2) [px]."""
@@ -336,20 +406,29 @@ def _keep(found: np.ndarray) -> np.ndarray:
     return found[keep]
 
 
-def _masked_correlation(image: np.ndarray, template: np.ndarray, mask: np.ndarray) -> np.ndarray:
+def _masked_correlation(image: np.ndarray, template: np.ndarray, mask: np.ndarray,
+                        spread: np.ndarray | None = None) -> np.ndarray:
     """Normalised cross-correlation of ``template`` with ``image`` over the pixels where ``mask`` is 1.
 
     As ``cv2.matchTemplate(..., TM_CCOEFF_NORMED, mask=mask)``, but from three
     plain correlations (a third of the time): the template made zero-mean
-    on the mask, and the mask's sums of the image and of its square.
+    on the mask, and the mask's sums of the image and of its square (its
+    ``spread``, :func:`_masked_spread`, which may be given: it does not
+    depend on the template).
     """
     n = float(mask.sum())
     tz = mask * (template - float((mask * template).sum()) / n)
     num = cv2.matchTemplate(image, tz.astype(np.float32), cv2.TM_CCORR)
+    spread = _masked_spread(image, mask) if spread is None else spread
+    return num / (np.sqrt(float((tz * tz).sum())) * spread)
+
+
+def _masked_spread(image: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """The square root of n times the variance of ``image`` under ``mask`` (n pixels) at every placement."""
+    n = float(mask.sum())
     s1 = cv2.matchTemplate(image, mask, cv2.TM_CCORR)
     s2 = cv2.matchTemplate(image * image, mask, cv2.TM_CCORR)
-    var = np.maximum(s2 - s1 * s1 / n, 1e-3 * n)
-    return num / (np.sqrt(float((tz * tz).sum())) * np.sqrt(var))
+    return np.sqrt(np.maximum(s2 - s1 * s1 / n, 1e-3 * n))
 
 
 def _parabola(a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
