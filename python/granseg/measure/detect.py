@@ -22,7 +22,10 @@ refined as every frame's are, and the final templates are cut around the
 refined centres. Last, the confirmed spheres' outlines tell where each
 group's edge finder misses the rim on some side (a shaded limb: :func:`_ray_bias`,
 taken off in every fit from then on), and how sharp a sphere's rim must be
-(:func:`_rim_limits`).
+(:func:`_rim_limits`). Then each group's template learns how its look
+changes across the view, from the spheres it finds (lamps beside the camera
+light the spheres near the window's sides from the side:
+:func:`granseg.measure.templates.with_columns`).
 
 Every frame (:func:`detect_particles`): the candidates are the matches of
 the templates over the sphere disk, each given the group its colour belongs

@@ -105,7 +105,7 @@ def build_templates(smooth: np.ndarray, image: np.ndarray, centres: np.ndarray, 
     """
     half = int(np.ceil(TEMPLATE_HALF * d))
     size = 2 * half + 1
-    patches = np.stack([cv2.getRectSubPix(smooth, (size, size), (float(x), float(y))) for x, y in centres])
+    patches = _patches(smooth, centres, size)
     colours = _middle_colours(image, centres, d)
     groups = np.zeros(len(centres), dtype=int) if one_group else _appearance_groups(colours)
     means, offsets, radii, mean_colours, disks = [], [], [], [], []
@@ -145,7 +145,7 @@ def with_columns(smooth: dict[int, np.ndarray], templates: Templates, spheres: n
             by_column.append(None)
             continue
         image = smooth[int(templates.signs[g])]
-        patches = np.stack([cv2.getRectSubPix(image, (size, size), (float(x), float(y))) for x, y in mine[:, :2]])
+        patches = _patches(image, mine[:, :2], size)
         lo, hi = float(mine[:, 0].min()), float(mine[:, 0].max())
         mid, half_width = (lo + hi) / 2, max((hi - lo) / 2, 1.0)
         u = (mine[:, 0] - mid) / half_width
@@ -156,6 +156,11 @@ def with_columns(smooth: dict[int, np.ndarray], templates: Templates, spheres: n
         looks = (np.column_stack([np.ones_like(centre), centre, centre * centre]) @ coef).reshape(COLUMNS, size, size)
         by_column.append((edges[1:-1], looks.astype(np.float32)))
     return replace(templates, by_column=tuple(by_column) if any(c is not None for c in by_column) else None)
+
+
+def _patches(image: np.ndarray, centres: np.ndarray, size: int) -> np.ndarray:
+    """(m, size, size) patches of ``image`` centred (to sub-pixel) on each of ``centres`` (m, 2)."""
+    return np.stack([cv2.getRectSubPix(image, (size, size), (float(x), float(y))) for x, y in centres])
 
 
 def _disk(size: int, offset, radius: float) -> np.ndarray:
