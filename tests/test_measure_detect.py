@@ -9,7 +9,14 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from granseg.measure.detect import _packing, detect_particles, learn_templates
+from granseg.measure.detect import (
+    _follows,
+    _packing,
+    _smooth,
+    _symmetric_row,
+    detect_particles,
+    learn_templates,
+)
 from granseg.measure.outline import (
     MIN_MIXED_PAIRS,
     N_FIT_RAYS,
@@ -24,6 +31,8 @@ from granseg.measure.templates import (
     _disk,
     _masked_correlation,
     _middle_colours,
+    find_spheres,
+    recentred,
 )
 
 
@@ -387,3 +396,68 @@ def test_each_column_of_the_scores_is_its_own_templates_correlation():
         alone = DiskScores.of({1: image.astype(np.float32)},
                               replace(templates, patches=(looks[c],) + templates.patches[1:], by_column=None))
         np.testing.assert_allclose(scores.maps[0][:, column == c], alone.maps[0][:, column == c], atol=1e-4)
+
+
+def _glassy_scene(d: float, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """Rows of spheres that look alike and are symmetric about their centres: a dark disk with a
+    bright ring inside its outline and two bright vertical bars (a lamp either side, mirrored in it),
+    on grey gaps. Returns the image and the centres."""
+    rng = np.random.default_rng(seed)
+    h, w = int(8 * d), int(12 * d)
+    centres = _rows(rng, d, (0.8 * d, h - 0.8 * d), (0.8 * d, w - 0.8 * d))
+    yy, xx = np.mgrid[0:h, 0:w].astype(float)
+    image = np.full((h, w), 110.0)
+    for x, y in centres:
+        r = d / 2
+        rho = np.hypot(xx - x, yy - y)
+        alpha = np.clip(r - rho + 0.5, 0, 1)
+        look = 30.0 + 150.0 * np.exp(-((rho - 0.8 * r) / (0.08 * r)) ** 2)
+        look += 180.0 * ((np.abs(np.abs(xx - x) - 0.35 * r) < 0.08 * r) & (np.abs(yy - y) < 0.4 * r))
+        image = image * (1 - alpha) + look * alpha
+    image += rng.normal(0, 3, image.shape)
+    return np.clip(image, 0, 255).astype(np.uint8), centres
+
+
+@pytest.mark.parametrize("shift", [(0.0, 2.5), (-1.5, -3.0)])
+def test_the_centre_of_a_symmetric_look_is_found_from_displaced_centres(shift):
+    """Spheres whose look is symmetric about their centres, their centres given ``shift`` off: the
+    row (and column) about which their mean look is most symmetric is ``shift`` back, to within
+    a step of the search."""
+    d = 34.0
+    image, centres = _glassy_scene(d, 0)
+    templates = learn_templates(image, d)
+    inside = np.all((centres > 0.8 * d) & (centres < np.array(image.shape[::-1]) - 0.8 * d), axis=1)
+    off = centres[inside] + shift
+    smooth = image.astype(np.float32)
+    assert _symmetric_row(smooth, off, templates) == pytest.approx(-shift[1], abs=0.3)
+    assert _symmetric_row(smooth, off, templates, axis=0) == pytest.approx(-shift[0], abs=0.3)
+
+
+def test_a_recentred_template_moves_its_matches():
+    """recentred(templates, g, (dx, dy)) puts each match of group g (dx, dy) further on, as a template
+    cut around centres that far off would (every group's here: one frame-wide, one per column)."""
+    d = 34.0
+    image, _ = _glassy_scene(d, 1)
+    templates = learn_templates(image, d)
+    assert templates.by_column is not None and None in templates.by_column
+    smooth = _smooth(image, d, templates.signs)
+    before = find_spheres(smooth, image, templates)
+    moved = templates
+    for g in range(len(templates.patches)):
+        moved = recentred(moved, g, (1.0, 2.0))
+    after = find_spheres(smooth, image, moved)
+    dist, j = cKDTree(after[:, :2]).query(before[:, :2])
+    near = dist < 0.2 * d
+    assert near.mean() > 0.9
+    np.testing.assert_allclose(np.median(after[j[near], :2] - before[near, :2], axis=0), [1.0, 2.0], atol=0.3)
+
+
+def test_an_outline_fit_holds_a_sharp_rimmed_sphere():
+    """The outline fit brings back a start a tenth of a diameter off on spheres with a sharp rim
+    (_follows near 0): such groups are left where their fit puts them."""
+    d = 34.0
+    image, _ = _side_lit_scene(d, 4)
+    templates = learn_templates(image, d)
+    smooth = _smooth(image, d, templates.signs)
+    spheres = detect_particles(smooth[int(templates.signs[0])].astype(np.uint8), d, templates, details=True)
+    assert _follows(smooth[int(templates.signs[0])], spheres, templates, 0) < 0.2

@@ -37,8 +37,8 @@ LOOKS = sorted(p.name for p in PBR.iterdir() if (p / "truth.npz").is_file())
 # flagged by their quality checks; the mirror steel maps now meet both targets
 # and stay flagged (their outline fit does not settle).
 MISSED = {
-    "glass-pom": "transparent glass: centres do not settle on its outline, and some glass among POM is "
-                 "taken for POM (flagged)",
+    "glass-pom": "transparent glass: centres do not settle on its outline (flagged); counts 2.9 %, RMSD 0.043 "
+                 "since it is centred where its look is symmetric",
     "glass-pp": "transparent glass: centres do not settle on its outline (flagged)",
     # mirror steel is learned from the matte spheres' matches and placed by its
     # template (detect._borrowed): both maps meet the RMSD target, their counts
@@ -103,6 +103,26 @@ def test_mirror_steel_is_learned_from_the_matte_spheres(look):
     dist, _ = cKDTree(np.column_stack([first.x, first.y])).query(steel[:, :2])
     d = exp.particle_diameter_px
     assert np.mean(dist < 0.1 * d) >= 0.9, np.mean(dist < 0.1 * d)
+
+
+@pytest.mark.parametrize("look", ["glass-pp", "glass-pom"])
+def test_glass_is_centred_where_its_look_is_symmetric(look):
+    """Transparent glass gives the outline fit no rim to hold to, and its template kept the first
+    seeds' offset: the first frame's glass spheres were found 2.2-2.9 px high on average. Centred
+    where its mean look is symmetric, they are found within half a pixel of the truth on average."""
+    truth = load_fixture(PBR / look)
+    exp = load_experiment(PBR / look / "experiment.json")
+    image = cv2.imread(str(PBR / look / "frame_0000.jpg"))
+    worker = _FrameWorker(exp, (image.shape[1], image.shape[0]))
+    worker.learn(image)
+    first = worker("frame_0000.jpg", image)[0]
+    found = np.column_stack([first.x, first.y])
+    rows = truth.particles[0]
+    dist, j = cKDTree(rows[:, :2]).query(found)
+    glass = (dist < 0.3 * exp.particle_diameter_px) & (rows[j, 3] > 0)  # glass is the heavy class in both
+    assert glass.sum() >= 50, glass.sum()
+    error = (found[glass] - rows[j[glass], :2]).mean(axis=0)
+    assert np.all(np.abs(error) < 0.5), error
 
 
 def test_spheres_placed_by_their_template_are_reported(tmp_path, capsys):

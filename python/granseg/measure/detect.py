@@ -49,9 +49,11 @@ from scipy.spatial import cKDTree
 from granseg.measure.outline import N_FIT_RAYS, fit_outlines, outline_bias, refine_circles
 from granseg.measure.templates import (
     Templates,
+    _patches,
     build_templates,
     find_spheres,
     join_templates,
+    recentred,
     with_columns,
 )
 
@@ -100,6 +102,21 @@ MIN_CONFIRMED = 30  # confirmed spheres a group needs for rim limits of its own 
 # 2.19 %).
 BIAS_ROUNDS = 2
 COLUMN_ROUNDS = 2  # learnings of the look across the view (learn_templates)
+# A group whose outline fit does not hold a sphere's place follows where it
+# is started: started a tenth of a diameter above and below, its fits end
+# more than FOLLOWS of that apart (median over the first frame's spheres).
+# Physically based tuning packings: transparent glass 0.63-0.64, every matte
+# group 0.00-0.13; 2-D renderer, every group of seeds 7-8 0.00-0.07 (0.33
+# for the ten PP spheres of C-PP-90 seed 8, fewer than MIN_CONFIRMED)
+# (benches/bench_glass_centring.py; BENCHMARKS.md, "Glass placed where its
+# look is symmetric"). Such a group's spheres end near where its template's match
+# starts them, so its template is centred where the spheres' mean look is
+# symmetric (:func:`_symmetric_where_unheld`).
+FOLLOWS = 0.5
+HELD_ROUNDS = 2  # re-centrings of an unheld group's template, each on the spheres the last one found
+SYMMETRY_ROUNDS = 3  # re-cuts of the mean look (_symmetric_row): the first moves it most of the way
+SYMMETRY_SPAN = 0.2  # how far [d] from the template's middle the centre of symmetry may lie
+SYMMETRY_STEP_PX = 0.25
 
 
 def to_gray(image: np.ndarray) -> np.ndarray:
@@ -182,7 +199,89 @@ def learn_templates(image: np.ndarray, particle_diameter_px: float,
     across = templates
     for _ in range(COLUMN_ROUNDS):
         across = with_columns(smooth, templates, detect_particles(image, d, across, details=True))
-    return across
+    return _symmetric_where_unheld(image, smooth, across)
+
+
+def _symmetric_where_unheld(image: np.ndarray, smooth: dict[int, np.ndarray], templates: Templates) -> Templates:
+    """``templates`` with each group whose outline fit follows where it is started (:func:`_follows`,
+    over FOLLOWS) centred where the mean look of its spheres in ``image`` (grey by sign: ``smooth``)
+    is symmetric (:func:`_symmetric_row`), in HELD_ROUNDS rounds: the spheres found again with the
+    re-centred template are fitted from there, and what the fit kept of where the old template put
+    them is taken off in the next round.
+
+    Transparent glass under lamps beside the camera shows no rim the fit can
+    hold to: its edges are the lamps' reflections and the refracted image
+    of what lies behind it, and the fit ends near where it starts. Its
+    templates, cut around fitted centres, then keep whatever offset the first
+    seeds had (physically based glass-pp and glass-pom, tuning packings:
+    every glass sphere found 2.6-3.7 px high on average; started at the true
+    centres, the fit stays within 0.3 px of them). The mean look of a sphere
+    over the whole view is symmetric about its centre, top to bottom and left
+    to right, when the lamps stand level with the camera on both sides, as
+    the physically based looks' panels do. With lamps above, the mean look
+    is brighter on top and its centre of symmetry lies high; no group of the
+    2-D renderer (lamps above) follows its start, so none is moved there.
+    Mirror steel placed by a borrowed template (``by_match``) keeps that
+    template's centre (its fit keeps all of a displaced start).
+    """
+    d = templates.d
+    spheres = detect_particles(image, d, templates, details=True)
+    unheld = [g for g in range(len(templates.patches))
+              if not (templates.by_match is not None and templates.by_match[g])
+              and (spheres[:, 4] == g).sum() >= MIN_CONFIRMED
+              and _follows(smooth[int(templates.signs[g])], spheres[spheres[:, 4] == g], templates, g) > FOLLOWS]
+    for _ in range(HELD_ROUNDS if unheld else 0):
+        for g in unheld:
+            mine = spheres[spheres[:, 4] == g, :2]
+            if len(mine):
+                seen = smooth[int(templates.signs[g])]
+                shift = (_symmetric_row(seen, mine, templates, axis=0), _symmetric_row(seen, mine, templates))
+                templates = recentred(templates, g, shift)
+        spheres = detect_particles(image, d, templates, details=True)
+    return templates
+
+
+def _follows(image: np.ndarray, spheres: np.ndarray, templates: Templates, group: int) -> float:
+    """How much of a vertical displacement of its start the outline fit keeps: the median, over
+    ``spheres`` (m, >= 3: x, y, radius) of ``group``, of the distance between the fits started 0.1 d
+    above and below the sphere, over 0.2 d (0: the fit comes back; 1: it stays where started)."""
+    d = templates.d
+    bias = None if templates.ray_bias is None else templates.ray_bias[np.full(len(spheres), group)]
+    ends = []
+    for dy in (-0.1 * d, 0.1 * d):
+        start = spheres[:, :2] + [0.0, dy]
+        ends.append(fit_outlines(image, start, spheres[:, 2], d, ray_bias=bias).centres[:, 1])
+    return float(np.median((ends[1] - ends[0]) / (0.2 * d)))
+
+
+def _symmetric_row(image: np.ndarray, centres: np.ndarray, templates: Templates, axis: int = 1) -> float:
+    """How far below ``centres`` (m, 2) [px] the spheres' mean look in ``image`` is most symmetric top to
+    bottom [px]: the mean patch around them mirrored about each row within SYMMETRY_SPAN d, the
+    correlation over the sphere's disk (1.1 radii) about that row; re-cut about the best row
+    SYMMETRY_ROUNDS times (the mean patch of scattered centres is blurred; once re-cut it is less).
+    ``axis=0``: how far right of them it is most symmetric left to right."""
+    d = templates.d
+    size = 2 * templates.half + 1
+    middle = (size - 1) / 2
+    yy, xx = np.mgrid[0:size, 0:size].astype(np.float32)
+    along, across = (yy, xx) if axis == 1 else (xx, yy)
+    rows = np.arange(-SYMMETRY_SPAN * d, SYMMETRY_SPAN * d + 1e-9, SYMMETRY_STEP_PX)
+    total = 0.0
+    for _ in range(SYMMETRY_ROUNDS):
+        mean = _patches(image, centres + np.eye(2)[axis] * total, size).mean(axis=0)
+        score = np.full(len(rows), -np.inf)
+        for i, row in enumerate(rows):
+            mirror = (2 * (middle + row) - along).astype(np.float32)
+            mirrored = cv2.remap(mean, *((xx, mirror) if axis == 1 else (mirror, yy)), cv2.INTER_LINEAR,
+                                 borderMode=cv2.BORDER_REPLICATE)
+            disk = (across - middle) ** 2 + (along - middle - row) ** 2 <= (0.55 * d) ** 2
+            a, b = mean[disk] - mean[disk].mean(), mirrored[disk] - mirrored[disk].mean()
+            score[i] = float((a * b).sum() / np.sqrt((a * a).sum() * (b * b).sum() + 1e-12))
+        step = float(rows[int(np.argmax(score))])
+        total += step
+        if abs(step) < SYMMETRY_STEP_PX:
+            break
+    return total
 
 
 def _choose_templates(image: np.ndarray, d: float,

@@ -27,7 +27,8 @@ import numpy as np
 
 from granseg.measure.outline import ring_centre
 
-__all__ = ["DiskScores", "Templates", "build_templates", "find_spheres", "join_templates", "with_columns"]
+__all__ = ["DiskScores", "Templates", "build_templates", "find_spheres", "join_templates", "recentred",
+           "with_columns"]
 
 TEMPLATE_HALF = 0.75  # template half-size [d]: the sphere, its outline and the gaps around it
 DISK = 1.05  # radius of the matched disk [sphere radii]: the sphere and its outline
@@ -156,6 +157,27 @@ def with_columns(smooth: dict[int, np.ndarray], templates: Templates, spheres: n
         looks = (np.column_stack([np.ones_like(centre), centre, centre * centre]) @ coef).reshape(COLUMNS, size, size)
         by_column.append((edges[1:-1], looks.astype(np.float32)))
     return replace(templates, by_column=tuple(by_column) if any(c is not None for c in by_column) else None)
+
+
+def recentred(templates: Templates, group: int, shift: tuple[float, float]) -> Templates:
+    """``templates`` with ``group``'s sphere centre moved by ``shift`` (dx, dy) [px]: its patches (the
+    frame-wide one and each column's) resampled so that the point ``shift`` from their middle comes
+    to the middle, as if they had been cut around centres ``shift`` further on. Offset, disk and
+    radius stay: the sphere is where the resampled patch's middle is."""
+    move = np.float32([[1, 0, shift[0]], [0, 1, shift[1]]])
+
+    def resample(patch: np.ndarray) -> np.ndarray:
+        return cv2.warpAffine(patch, move, patch.shape[::-1], flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
+                              borderMode=cv2.BORDER_REPLICATE)
+
+    patches = list(templates.patches)
+    patches[group] = resample(patches[group])
+    by_column = templates.by_column
+    if by_column is not None and by_column[group] is not None:
+        edges, looks = by_column[group]
+        by_column = tuple((edges, np.stack([resample(look) for look in looks])) if g == group else part
+                          for g, part in enumerate(by_column))
+    return replace(templates, patches=tuple(patches), by_column=by_column)
 
 
 def _patches(image: np.ndarray, centres: np.ndarray, size: int) -> np.ndarray:
