@@ -337,26 +337,35 @@ def test_too_few_mixed_pairs_read_no_shift():
     assert pairs < MIN_MIXED_PAIRS and got == 0.0
 
 
+def _scene_of_rows(d: float, seed: int, width: float, ground: float, look) -> tuple[np.ndarray, np.ndarray]:
+    """Rows of disks of diameter ``d`` on a ``ground`` grey, 8 d tall and ``width`` d wide, each drawn
+    as ``look(dx, dy, side)`` (offsets from its centre [px], side: -1 at the image's left edge, +1
+    at its right), with noise of sd 3. Returns the image and the centres."""
+    rng = np.random.default_rng(seed)
+    h, w = int(8 * d), int(width * d)
+    centres = _rows(rng, d, (0.8 * d, h - 0.8 * d), (0.8 * d, w - 0.8 * d))
+    yy, xx = np.mgrid[0:h, 0:w].astype(float)
+    image = np.full((h, w), ground)
+    for x, y in centres:
+        alpha = np.clip(d / 2 - np.hypot(xx - x, yy - y) + 0.5, 0, 1)
+        image = image * (1 - alpha) + look(xx - x, yy - y, (x - w / 2) / (w / 2)) * alpha
+    image += rng.normal(0, 3, image.shape)
+    return np.clip(image, 0, 255).astype(np.uint8), centres
+
+
 def _side_lit_scene(d: float, seed: int) -> tuple[np.ndarray, np.ndarray]:
     """Disks in rows whose look turns across the image, as under lamps beside the camera: a dome
     lit from the front in the middle, at the sides a crescent lit from the nearer side only (the
     inner half as dark as the gaps), with the same mean brightness everywhere. Returns the
     image and the centres."""
-    rng = np.random.default_rng(seed)
-    h, w = int(8 * d), int(22 * d)
-    centres = _rows(rng, d, (0.8 * d, h - 0.8 * d), (0.8 * d, w - 0.8 * d))
-    yy, xx = np.mgrid[0:h, 0:w].astype(float)
-    image = np.full((h, w), 30.0)
-    for x, y in centres:
-        side = (x - w / 2) / (w / 2)  # -1 at the left edge, +1 at the right
-        r = d / 2
-        rho = np.hypot(xx - x, yy - y)
-        alpha = np.clip(r - rho + 0.5, 0, 1)
-        dome = 200.0 - 120.0 * (rho / r) ** 2
-        crescent = 40.0 + 200.0 * np.sqrt(np.clip((xx - x) / r * np.sign(side), 0, 1))
-        image = image * (1 - alpha) + ((1 - abs(side)) * dome + abs(side) * crescent) * alpha
-    image += rng.normal(0, 3, image.shape)
-    return np.clip(image, 0, 255).astype(np.uint8), centres
+    r = d / 2
+
+    def look(dx, dy, side):
+        dome = 200.0 - 120.0 * (np.hypot(dx, dy) / r) ** 2
+        crescent = 40.0 + 200.0 * np.sqrt(np.clip(dx / r * np.sign(side), 0, 1))
+        return (1 - abs(side)) * dome + abs(side) * crescent
+
+    return _scene_of_rows(d, seed, 22, 30.0, look)
 
 
 @pytest.mark.parametrize("seed", [0, 1])
@@ -402,20 +411,13 @@ def _glassy_scene(d: float, seed: int) -> tuple[np.ndarray, np.ndarray]:
     """Rows of spheres that look alike and are symmetric about their centres: a dark disk with a
     bright ring inside its outline and two bright vertical bars (a lamp either side, mirrored in it),
     on grey gaps. Returns the image and the centres."""
-    rng = np.random.default_rng(seed)
-    h, w = int(8 * d), int(12 * d)
-    centres = _rows(rng, d, (0.8 * d, h - 0.8 * d), (0.8 * d, w - 0.8 * d))
-    yy, xx = np.mgrid[0:h, 0:w].astype(float)
-    image = np.full((h, w), 110.0)
-    for x, y in centres:
-        r = d / 2
-        rho = np.hypot(xx - x, yy - y)
-        alpha = np.clip(r - rho + 0.5, 0, 1)
-        look = 30.0 + 150.0 * np.exp(-((rho - 0.8 * r) / (0.08 * r)) ** 2)
-        look += 180.0 * ((np.abs(np.abs(xx - x) - 0.35 * r) < 0.08 * r) & (np.abs(yy - y) < 0.4 * r))
-        image = image * (1 - alpha) + look * alpha
-    image += rng.normal(0, 3, image.shape)
-    return np.clip(image, 0, 255).astype(np.uint8), centres
+    r = d / 2
+
+    def look(dx, dy, side):
+        ring = 30.0 + 150.0 * np.exp(-((np.hypot(dx, dy) - 0.8 * r) / (0.08 * r)) ** 2)
+        return ring + 180.0 * ((np.abs(np.abs(dx) - 0.35 * r) < 0.08 * r) & (np.abs(dy) < 0.4 * r))
+
+    return _scene_of_rows(d, seed, 12, 110.0, look)
 
 
 @pytest.mark.parametrize("shift", [(0.0, 2.5), (-1.5, -3.0)])
