@@ -10,10 +10,12 @@ import pytest
 from scipy.spatial import cKDTree
 
 from granseg.measure.detect import (
+    TURN,
     _follows,
     _packing,
     _smooth,
     _symmetric_row,
+    _turn,
     detect_particles,
     learn_templates,
 )
@@ -463,3 +465,14 @@ def test_an_outline_fit_holds_a_sharp_rimmed_sphere():
     smooth = _smooth(image, d, templates.signs)
     spheres = detect_particles(smooth[int(templates.signs[0])].astype(np.uint8), d, templates, details=True)
     assert _follows(smooth[int(templates.signs[0])], spheres, templates, 0) < 0.2
+
+
+def test_lamps_on_both_sides_turn_the_look_across_the_view():
+    """Spheres lit from the nearer side near the image's edges turn their brightness centroid across
+    the view by far more than TURN radii; spheres that look the same everywhere do not turn."""
+    d = 34.0
+    side_lit, centres = _side_lit_scene(d, 5)
+    same, same_centres = _glassy_scene(d, 5)
+    templates = learn_templates(same, d)
+    assert _turn(side_lit.astype(np.float32), centres, templates) > 2 * TURN
+    assert abs(_turn(same.astype(np.float32), same_centres, templates)) < 0.25 * TURN
