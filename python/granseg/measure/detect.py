@@ -25,7 +25,11 @@ taken off in every fit from then on), and how sharp a sphere's rim must be
 (:func:`_rim_limits`). Then each group's template learns how its look
 changes across the view, from the spheres it finds (lamps beside the camera
 light the spheres near the window's sides from the side:
-:func:`granseg.measure.templates.with_columns`).
+:func:`granseg.measure.templates.with_columns`). Last, a group whose outline
+fit does not hold a sphere's place (transparent glass: the fit ends where it
+is started) has its template centred where its spheres' mean look is
+symmetric, if the spheres the fit does hold show lamps on both sides, level
+with the camera (:func:`_symmetric_where_unheld`).
 
 Every frame (:func:`detect_particles`): the candidates are the matches of
 the templates over the sphere disk, each given the group its colour belongs
@@ -229,7 +233,7 @@ def _symmetric_where_unheld(image: np.ndarray, smooth: dict[int, np.ndarray], te
     of what lies behind it, and the fit ends near where it starts. Its
     templates, cut around fitted centres, then keep whatever offset the first
     seeds had (physically based glass-pp and glass-pom, tuning packings:
-    every glass sphere found 2.6-3.7 px high on average; started at the true
+    the glass found 2.9-3.7 px high on average; started at the true
     centres, the fit stays within 0.3 px of them). The mean look of a sphere
     over the whole view is symmetric about its centre, top to bottom and left
     to right, when the lamps stand level with the camera on both sides, as
