@@ -4,7 +4,7 @@ For the first frame of each look, per group of spheres (template): how many
 were found, how much of a start displaced by a tenth of a diameter its
 outline fit keeps (``detect._follows``: 0 comes back, 1 stays), how far from
 its centres [d] its mean look is most symmetric left to right and top to
-bottom (``detect._symmetric_row``), how far its look turns across the view
+bottom (``detect._centre_of_symmetry``), how far its look turns across the view
 (``detect._turn``, radii; both what ``detect._level`` reads from the groups
 the fit holds), and the mean and sd of the centres' error against the
 truth [px], with the last step of learning (``detect._symmetric_where_unheld``:
@@ -70,7 +70,7 @@ def groups(image: np.ndarray, truth: np.ndarray, exp, step: bool) -> list[dict]:
         local[:, 1] -= worker.crop[1]
         seen = smooth[int(t.signs[g])]
         follows = detect._follows(seen, local, t, g) if len(mine) >= 3 else float("nan")
-        symmetric = [detect._symmetric_row(seen, local[:, :2], t, axis) / d if len(mine) else float("nan")
+        symmetric = [detect._centre_of_symmetry(seen, local[:, :2], t, axis) / d if len(mine) else float("nan")
                      for axis in (0, 1)]
         turn = detect._turn(detect._smooth(crop, d)[1], local[:, :2], t) if len(mine) else float("nan")
         out.append({"n": len(mine), "follows": follows, "symmetric": symmetric, "turn": turn,

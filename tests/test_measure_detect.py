@@ -11,10 +11,10 @@ from scipy.spatial import cKDTree
 
 from granseg.measure.detect import (
     TURN,
+    _centre_of_symmetry,
     _follows,
     _packing,
     _smooth,
-    _symmetric_row,
     _turn,
     detect_particles,
     learn_templates,
@@ -433,8 +433,8 @@ def test_the_centre_of_a_symmetric_look_is_found_from_displaced_centres(shift):
     inside = np.all((centres > 0.8 * d) & (centres < np.array(image.shape[::-1]) - 0.8 * d), axis=1)
     off = centres[inside] + shift
     smooth = image.astype(np.float32)
-    assert _symmetric_row(smooth, off, templates) == pytest.approx(-shift[1], abs=0.3)
-    assert _symmetric_row(smooth, off, templates, axis=0) == pytest.approx(-shift[0], abs=0.3)
+    assert _centre_of_symmetry(smooth, off, templates) == pytest.approx(-shift[1], abs=0.3)
+    assert _centre_of_symmetry(smooth, off, templates, axis=0) == pytest.approx(-shift[0], abs=0.3)
 
 
 def test_a_recentred_template_moves_its_matches():

@@ -41,8 +41,8 @@ MISSED = {
                  "since it is centred where its look is symmetric",
     "glass-pp": "transparent glass: centres do not settle on its outline (flagged)",
     # mirror steel is learned from the matte spheres' matches and placed by its
-    # template (detect._borrowed): both maps meet the RMSD target, their counts
-    # are 3.6-3.8 % off; the outline fit still does not settle on its rim
+    # template (detect._borrowed): both maps meet both targets since the look
+    # across the view; the outline fit still does not settle on its rim
     "steel-pp": "mirror-like steel over blue PP: placed by its template, counts 0.5 % (flagged: centres_settled, "
                 "window_lines)",
     "steel-pom": "mirror-like steel over POM: placed by its template, counts 2.8 % (flagged: centres_settled, "

@@ -53,8 +53,8 @@ from scipy.spatial import cKDTree
 from granseg.measure.outline import N_FIT_RAYS, fit_outlines, outline_bias, refine_circles
 from granseg.measure.templates import (
     Templates,
-    _patches,
     build_templates,
+    cut_patches,
     find_spheres,
     join_templates,
     recentred,
@@ -133,7 +133,7 @@ FOLLOWS = 0.5
 TURN = 0.2
 LEVEL = 0.03
 HELD_ROUNDS = 2  # re-centrings of an unheld group's template, each on the spheres the last one found
-SYMMETRY_ROUNDS = 3  # re-cuts of the mean look (_symmetric_row): the first moves it most of the way
+SYMMETRY_ROUNDS = 3  # re-cuts of the mean look (_centre_of_symmetry): the first moves it most of the way
 SYMMETRY_SPAN = 0.2  # how far [d] from the template's middle the centre of symmetry may lie
 SYMMETRY_STEP_PX = 0.25
 
@@ -224,7 +224,7 @@ def learn_templates(image: np.ndarray, particle_diameter_px: float,
 def _symmetric_where_unheld(image: np.ndarray, smooth: dict[int, np.ndarray], templates: Templates) -> Templates:
     """``templates`` with each group whose outline fit follows where it is started (:func:`_follows`,
     over FOLLOWS) centred where the mean look of its spheres in ``image`` (grey by sign: ``smooth``)
-    is symmetric (:func:`_symmetric_row`), in HELD_ROUNDS rounds: the spheres found again with the
+    is symmetric (:func:`_centre_of_symmetry`), in HELD_ROUNDS rounds: the spheres found again with the
     re-centred template are fitted from there, and what the fit kept of where the old template put
     them is taken off in the next round.
 
@@ -247,37 +247,38 @@ def _symmetric_where_unheld(image: np.ndarray, smooth: dict[int, np.ndarray], te
     """
     d = templates.d
     spheres = detect_particles(image, d, templates, details=True)
-    unheld = [g for g in range(len(templates.patches))
+    fitted = [g for g in range(len(templates.patches))  # placed by their outline fit, enough of them
               if not (templates.by_match is not None and templates.by_match[g])
-              and (spheres[:, 4] == g).sum() >= MIN_CONFIRMED
-              and _follows(smooth[int(templates.signs[g])], spheres[spheres[:, 4] == g], templates, g) > FOLLOWS]
-    level = _level(image, smooth, templates, spheres, unheld) if unheld else (False, False)
-    for _ in range(HELD_ROUNDS if any(level) else 0):
+              and (spheres[:, 4] == g).sum() >= MIN_CONFIRMED]
+    unheld = [g for g in fitted
+              if _follows(smooth[int(templates.signs[g])], spheres[spheres[:, 4] == g], templates, g) > FOLLOWS]
+    if not unheld:
+        return templates
+    level = _level(image, smooth, templates, [spheres[spheres[:, 4] == g] for g in fitted if g not in unheld])
+    for round_ in range(HELD_ROUNDS if any(level) else 0):
+        if round_:
+            spheres = detect_particles(image, d, templates, details=True)
         for g in unheld:
             mine = spheres[spheres[:, 4] == g, :2]
             if len(mine):
                 seen = smooth[int(templates.signs[g])]
-                shift = [_symmetric_row(seen, mine, templates, axis) if level[axis] else 0.0 for axis in (0, 1)]
+                shift = [_centre_of_symmetry(seen, mine, templates, axis) if level[axis] else 0.0 for axis in (0, 1)]
                 templates = recentred(templates, g, shift)
-        spheres = detect_particles(image, d, templates, details=True)
     return templates
 
 
-def _level(image: np.ndarray, smooth: dict[int, np.ndarray], templates: Templates, spheres: np.ndarray,
-           unheld: list[int]) -> tuple[bool, bool]:
+def _level(image: np.ndarray, smooth: dict[int, np.ndarray], templates: Templates,
+           held: list[np.ndarray]) -> tuple[bool, bool]:
     """Whether the lamps light the spheres in ``image`` symmetrically left to right and top to bottom,
-    read from the groups the outline fit holds (not ``unheld``, not placed by match, at least
-    MIN_CONFIRMED of ``spheres``): lamps on both sides (every such group's look turns across the
-    view by more than TURN: :func:`_turn`), and in each direction every such group's mean look
-    symmetric within LEVEL diameters of its fitted centres. (False, False) without such a group."""
-    held = [spheres[spheres[:, 4] == g] for g in range(len(templates.patches))
-            if g not in unheld and not (templates.by_match is not None and templates.by_match[g])
-            and (spheres[:, 4] == g).sum() >= MIN_CONFIRMED]
+    read from ``held``, the spheres (m, >= 5: x, y, radius, correlation, group) of each group the
+    outline fit holds: lamps on both sides (every such group's look turns across the view by more
+    than TURN: :func:`_turn`), and in each direction every such group's mean look symmetric within
+    LEVEL diameters of its fitted centres. (False, False) without such a group."""
     grey = _smooth(image, templates.d)[1]
     if not held or not all(_turn(grey, mine[:, :2], templates) > TURN for mine in held):
         return False, False
-    return tuple(all(abs(_symmetric_row(smooth[int(templates.signs[int(mine[0, 4])])], mine[:, :2], templates,
-                                        axis)) <= LEVEL * templates.d for mine in held)
+    return tuple(all(abs(_centre_of_symmetry(smooth[int(templates.signs[int(mine[0, 4])])], mine[:, :2],
+                                             templates, axis)) <= LEVEL * templates.d for mine in held)
                  for axis in (0, 1))
 
 
@@ -294,7 +295,7 @@ def _turn(grey: np.ndarray, centres: np.ndarray, templates: Templates) -> float:
     for side in (centres[centres[:, 0] < lo + third], centres[centres[:, 0] > hi - third]):
         if len(side) < 5:
             return float("nan")
-        mean = _patches(grey, side, size).mean(axis=0)
+        mean = cut_patches(grey, side, size).mean(axis=0)
         light = np.clip(mean - np.percentile(mean[disk], 10), 0, None) * disk
         centroid.append(float((light * xx).sum() / max(light.sum(), 1e-9)) / (0.5 * templates.d))
     return centroid[1] - centroid[0]
@@ -313,7 +314,7 @@ def _follows(image: np.ndarray, spheres: np.ndarray, templates: Templates, group
     return float(np.median((ends[1] - ends[0]) / (0.2 * d)))
 
 
-def _symmetric_row(image: np.ndarray, centres: np.ndarray, templates: Templates, axis: int = 1) -> float:
+def _centre_of_symmetry(image: np.ndarray, centres: np.ndarray, templates: Templates, axis: int = 1) -> float:
     """How far below ``centres`` (m, 2) [px] the spheres' mean look in ``image`` is most symmetric top to
     bottom [px]: the mean patch around them mirrored about each row within SYMMETRY_SPAN d, the
     correlation over the sphere's disk (1.1 radii) about that row; re-cut about the best row
@@ -327,7 +328,7 @@ def _symmetric_row(image: np.ndarray, centres: np.ndarray, templates: Templates,
     rows = np.arange(-SYMMETRY_SPAN * d, SYMMETRY_SPAN * d + 1e-9, SYMMETRY_STEP_PX)
     total = 0.0
     for _ in range(SYMMETRY_ROUNDS):
-        mean = _patches(image, centres + np.eye(2)[axis] * total, size).mean(axis=0)
+        mean = cut_patches(image, centres + np.eye(2)[axis] * total, size).mean(axis=0)
         score = np.full(len(rows), -np.inf)
         for i, row in enumerate(rows):
             mirror = (2 * (middle + row) - along).astype(np.float32)

@@ -27,7 +27,7 @@ import numpy as np
 
 from granseg.measure.outline import ring_centre
 
-__all__ = ["DiskScores", "Templates", "build_templates", "find_spheres", "join_templates", "recentred",
+__all__ = ["DiskScores", "Templates", "build_templates", "cut_patches", "find_spheres", "join_templates", "recentred",
            "with_columns"]
 
 TEMPLATE_HALF = 0.75  # template half-size [d]: the sphere, its outline and the gaps around it
@@ -106,7 +106,7 @@ def build_templates(smooth: np.ndarray, image: np.ndarray, centres: np.ndarray, 
     """
     half = int(np.ceil(TEMPLATE_HALF * d))
     size = 2 * half + 1
-    patches = _patches(smooth, centres, size)
+    patches = cut_patches(smooth, centres, size)
     colours = _middle_colours(image, centres, d)
     groups = np.zeros(len(centres), dtype=int) if one_group else _appearance_groups(colours)
     means, offsets, radii, mean_colours, disks = [], [], [], [], []
@@ -146,7 +146,7 @@ def with_columns(smooth: dict[int, np.ndarray], templates: Templates, spheres: n
             by_column.append(None)
             continue
         image = smooth[int(templates.signs[g])]
-        patches = _patches(image, mine[:, :2], size)
+        patches = cut_patches(image, mine[:, :2], size)
         lo, hi = float(mine[:, 0].min()), float(mine[:, 0].max())
         mid, half_width = (lo + hi) / 2, max((hi - lo) / 2, 1.0)
         u = (mine[:, 0] - mid) / half_width
@@ -180,7 +180,7 @@ def recentred(templates: Templates, group: int, shift: tuple[float, float]) -> T
     return replace(templates, patches=tuple(patches), by_column=by_column)
 
 
-def _patches(image: np.ndarray, centres: np.ndarray, size: int) -> np.ndarray:
+def cut_patches(image: np.ndarray, centres: np.ndarray, size: int) -> np.ndarray:
     """(m, size, size) patches of ``image`` centred (to sub-pixel) on each of ``centres`` (m, 2)."""
     return np.stack([cv2.getRectSubPix(image, (size, size), (float(x), float(y))) for x, y in centres])
 
