@@ -1,6 +1,7 @@
 """Frames per second of ``granseg analyze`` on 1920 x 1440 JPEG frames.
 
     PYTHONPATH=python python benches/bench_measure.py [--frames 30] [--diameter 38] [--workers 2] [--dir DIR]
+    PYTHONPATH=python python benches/bench_measure.py --frames-from tests/fixtures/pbr/pom-pp --frames 120
 
 Renders the frames once (granseg.synth, steel/PP, two side lamps, JPEG 90;
 into DIR and kept there when given, reused if DIR already holds them), then
@@ -8,7 +9,9 @@ times the whole analysis (decode, undistort, detect, classify, bin) with the
 given number of worker processes, best of --repeat runs. It also prints
 the run's fixed part, the exposure survey and the learning of the spheres'
 looks from the first frame (done once per run, before the workers start), and
-the rate of the rest, which is what a long video sees.
+the rate of the rest, which is what a long video sees. ``--frames-from DIR``
+analyses the frames of DIR instead (a physically based fixture, say), each
+used over and over until there are ``--frames``.
 
 Shared machines differ from day to day (this bench read 12-14 frames/s one
 day and 20-21 the next on the same tree), so each run also times a fixed
@@ -72,6 +75,18 @@ def _yardstick(frame: Path, rounds: int = 10) -> float:
     return 1e3 * (time.perf_counter() - start) / rounds
 
 
+def _repeated(source: Path, frames: int, out: Path) -> Path:
+    """A folder of ``frames`` links to the JPEG frames of ``source``, used in turn, and its experiment.json."""
+    images = sorted(source.glob("*.jpg"))
+    if not images or not (source / "experiment.json").is_file():
+        raise SystemExit(f"--frames-from {source}: needs JPEG frames and an experiment.json")
+    out.mkdir(parents=True)
+    (out / "experiment.json").write_bytes((source / "experiment.json").read_bytes())
+    for i in range(frames):
+        (out / f"frame_{i:05d}.jpg").symlink_to(images[i % len(images)].resolve())
+    return out
+
+
 class _FixedPart:
     """Seconds spent in the run's fixed part (the frame worker's survey and learn), timed around them."""
 
@@ -106,16 +121,21 @@ def main() -> None:
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--dir", type=Path, default=None, help="keep (or reuse) the rendered frames here")
     ap.add_argument("--repeat", type=int, default=2)
+    ap.add_argument("--frames-from", type=Path, default=None,
+                    help="analyse this folder's frames (and experiment.json), repeated up to --frames")
     args = ap.parse_args()
     c = np.zeros((args.frames, 15))
     c[:, 8:] = 1.0
     c[1:] = 0.5
     with tempfile.TemporaryDirectory() as tmp:
         d = args.dir if args.dir is not None else Path(tmp) / "frames"
-        if not (d / "experiment.json").exists() or len(list(d.glob("*.jpg"))) != args.frames:
+        if args.frames_from is not None:
+            d = _repeated(args.frames_from, args.frames, Path(tmp) / "repeated")
+        elif not (d / "experiment.json").exists() or len(list(d.glob("*.jpg"))) != args.frames:
             render_frames(c, heavy="steel", light="pp", particle_diameter_px=args.diameter,
                           image_size=(1920, 1440), jpeg_quality=90, out_dir=d, force=True)
         first = sorted(d.glob("*.jpg"))[0]
+        h, w = cv2.imread(str(first)).shape[:2]
         before = yardstick_ms(first, args.workers)
         elapsed, fixed = np.inf, np.nan
         for _ in range(args.repeat):
@@ -127,7 +147,8 @@ def main() -> None:
                 elapsed, fixed = took, part.seconds
         after = yardstick_ms(first, args.workers)
     per = a.n.sum(axis=1).mean()
-    print(f"{args.frames} frames 1920x1440, D = {args.diameter:g} px, {per:.0f} spheres/frame in the window, "
+    diameter = a.experiment.particle_diameter_px
+    print(f"{args.frames} frames {w}x{h}, D = {diameter:g} px, {per:.0f} spheres/frame in the window, "
           f"{args.workers} workers: {elapsed:.2f} s, {args.frames / elapsed:.1f} frames/s "
           f"(survey and learning {fixed:.2f} s, then {(args.frames - 1) / (elapsed - fixed):.1f} frames/s); "
           f"machine yardstick {before:.0f} ms before, {after:.0f} ms after")

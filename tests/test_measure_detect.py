@@ -476,3 +476,21 @@ def test_lamps_on_both_sides_turn_the_look_across_the_view():
     templates = learn_templates(same, d)
     assert _turn(side_lit.astype(np.float32), centres, templates) > 2 * TURN
     assert abs(_turn(same.astype(np.float32), same_centres, templates)) < 0.25 * TURN
+
+
+def test_side_lit_spheres_are_placed_across_the_view_by_a_circle_of_their_size():
+    """Under lamps on both sides (the look turns across the view) each group the outline fit holds
+    takes its x from a circle of the nominal radius, and only its x: the spheres found and their y
+    stay the free circle's. Spheres lit alike everywhere keep the free circle."""
+    d = 34.0
+    image, _ = _side_lit_scene(d, 6)
+    templates = learn_templates(image, d)
+    assert templates.nominal_x is not None and templates.nominal_x.all()
+    nominal = detect_particles(image, d, templates, details=True)
+    free = detect_particles(image, d, replace(templates, nominal_x=None), details=True)
+    np.testing.assert_array_equal(nominal[:, 1:], free[:, 1:])
+    assert np.abs(nominal[:, 0] - free[:, 0]).max() > 0.01
+    r = d / 2
+    even, _ = _scene_of_rows(d, 6, 22, 30.0, lambda dx, dy, side: 200.0 - 120.0 * (np.hypot(dx, dy) / r) ** 2)
+    assert learn_templates(even, d).nominal_x is None
+

@@ -12,6 +12,7 @@ those targets today, so that a change that fixes or breaks one shows.
 from __future__ import annotations
 
 import warnings
+from dataclasses import replace
 from functools import cache
 from pathlib import Path
 
@@ -37,15 +38,16 @@ LOOKS = sorted(p.name for p in PBR.iterdir() if (p / "truth.npz").is_file())
 # flagged by their quality checks; the mirror steel maps now meet both targets
 # and stay flagged (their outline fit does not settle).
 MISSED = {
-    "glass-pom": "transparent glass: centres do not settle on its outline (flagged); counts 2.9 %, RMSD 0.043 "
-                 "since it is centred where its look is symmetric",
+    "glass-pom": "transparent glass: centres do not settle on its outline (flagged); counts 3.0 %, RMSD 0.037 "
+                 "since it is centred where its look is symmetric and its POM placed across the view by a "
+                 "circle of its size",
     "glass-pp": "transparent glass: centres do not settle on its outline (flagged)",
     # mirror steel is learned from the matte spheres' matches and placed by its
     # template (detect._borrowed): both maps meet both targets since the look
     # across the view; the outline fit still does not settle on its rim
     "steel-pp": "mirror-like steel over blue PP: placed by its template, counts 0.5 % (flagged: centres_settled, "
                 "window_lines)",
-    "steel-pom": "mirror-like steel over POM: placed by its template, counts 2.8 % (flagged: centres_settled, "
+    "steel-pom": "mirror-like steel over POM: placed by its template, counts 2.3 % (flagged: centres_settled, "
                  "window_lines)",
     # not flagged: the side lamps shade off-axis spheres unevenly and the
     # outline fit follows the lit limb, so centres are found outward (x 1.0-1.6
@@ -58,12 +60,15 @@ MISSED = {
     # outline bias per kind of sphere (detect._ray_bias), which cannot take off
     # a bias that turns across the frame; 4.2 % with the classes' relative
     # shift taken off (outline.class_shift); 5.3 % with each group's look
-    # learned across the view (templates.with_columns)
-    "pom-pp": "centres biased outward by the side lamps' shading (not flagged)",
+    # learned across the view (templates.with_columns); 5.2 % with x from a
+    # circle of the nominal size (detect._nominal_where_side_lit: the x bias
+    # goes, 1.2 -> 0.2 px near the sides; the y bias stays)
+    "pom-pp": "centres biased outward near the top and bottom by the side lamps' shading (not flagged)",
     # the four pairs of the paper's five materials it did not mix, rendered
     # after every choice above was made (seeds 18-21): glass and mirror steel
     # as on the other fixtures; ceramic over POM missed the counts a little
-    # (3.4 %, not flagged) until the look across the view (1.6 %)
+    # (3.4 %, not flagged) until the look across the view (1.6 %; 1.0 % since
+    # its spheres are placed across the view by a circle of their size)
     "steel-glass": "mirror steel over transparent glass: neither settles on its outline, classes ambiguous "
                    "(flagged)",
     "steel-ceramic": "mirror steel over ceramic: counts 1.4 % (flagged: centres_settled)",
@@ -123,6 +128,34 @@ def test_glass_is_centred_where_its_look_is_symmetric(look):
     assert glass.sum() >= 50, glass.sum()
     error = (found[glass] - rows[j[glass], :2]).mean(axis=0)
     assert np.all(np.abs(error) < 0.5), error
+
+
+@pytest.mark.parametrize("look", ["pom-pp", "ceramic-pp", "ceramic-pom", "grey-glossy-matte"])
+def test_side_lit_matte_spheres_are_not_found_outward_at_the_window_sides(look):
+    """Lamps beside the camera light the matte spheres near the window's sides from the side, and a
+    circle free in size hugs the lit limb: those within 40 px of a side were found 0.8-1.6 px
+    outward on average (benches/bench_pbr_centre_bias.py). Placed across the view by a circle of
+    the nominal size, they are within 0.7 px, and less than half as far out as the free circle."""
+    truth = load_fixture(PBR / look)
+    exp = load_experiment(PBR / look / "experiment.json")
+    worker = _FrameWorker(exp, truth.images[0].shape[1::-1])
+    worker.learn(truth.images[0])
+    assert worker.templates.nominal_x is not None
+    x0, _, x1, _ = exp.window
+
+    def outward() -> float:
+        errors = []
+        for i, (image, rows) in enumerate(zip(truth.images, truth.particles, strict=True)):
+            found = worker(str(i), image)[0]
+            dist, j = cKDTree(rows[:, :2]).query(np.column_stack([found.x, found.y]))
+            near = (dist < 0.3 * exp.particle_diameter_px) & ((rows[j, 0] < x0 + 40) | (rows[j, 0] > x1 - 40))
+            errors.append((found.x[near] - rows[j[near], 0]) * np.sign(rows[j[near], 0] - (x0 + x1) / 2))
+        return float(np.concatenate(errors).mean())
+
+    nominal = outward()
+    worker.templates = replace(worker.templates, nominal_x=None)
+    free = outward()
+    assert nominal < 0.7 and nominal < 0.5 * free, (nominal, free)
 
 
 def test_spheres_placed_by_their_template_are_reported(tmp_path, capsys):

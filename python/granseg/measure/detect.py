@@ -29,17 +29,22 @@ light the spheres near the window's sides from the side:
 fit does not hold a sphere's place (transparent glass: the fit ends where it
 is started) has its template centred where its spheres' mean look is
 symmetric, if the spheres the fit does hold show lamps on both sides, level
-with the camera (:func:`_symmetric_where_unheld`).
+with the camera (:func:`_symmetric_where_unheld`); and under such side lamps
+the groups the fit holds are placed across the view by a circle of the
+nominal size, which cannot hug the lit limb as a circle free in size does
+(:func:`_nominal_where_side_lit`).
 
 Every frame (:func:`detect_particles`): the candidates are the matches of
 the templates over the sphere disk, each given the group its colour belongs
 to, and each is placed by a robust circle fit to its outline
 (:mod:`granseg.measure.outline`; a borrowed group's spheres where their
-template matches best); a candidate is a sphere if its outline is
-a sharp rim at the sphere's size around at least half of it, as sharp as
-its group's confirmed spheres' within their scatter (:func:`_examine`):
+template matches best); a candidate is a sphere if its outline is a sharp
+rim at the sphere's size around at least half of it, as sharp as its
+group's confirmed spheres' within their scatter (:func:`_examine`):
 background, gaps, a free surface and smaller spheres are not; nor is a
-sphere with more than a third of its outline outside the image.
+sphere with more than a third of its outline outside the image. Under side
+lamps, the spheres kept take their x from the nominal circle
+(:func:`_x_by_nominal_circle`).
 """
 
 from __future__ import annotations
@@ -132,6 +137,12 @@ FOLLOWS = 0.5
 # most, both ways; BENCHMARKS.md, as above).
 TURN = 0.2
 LEVEL = 0.03
+# Iterations of the nominal circle's fit (_x_by_nominal_circle), started where
+# the free circle ended: two gave the maps of three within 0.002 in c_raw RMSD
+# on the physically based tuning packings, one moved them by up to 0.010
+# (benches/bench_pbr_looks.py; BENCHMARKS.md, "Side-lit spheres placed across
+# the view by a circle of their size"). Each costs a fit of the held spheres.
+NOMINAL_ITERATIONS = 2
 HELD_ROUNDS = 2  # re-centrings of an unheld group's template, each on the spheres the last one found
 SYMMETRY_ROUNDS = 3  # re-cuts of the mean look (_centre_of_symmetry): the first moves it most of the way
 SYMMETRY_SPAN = 0.2  # how far [d] from the template's middle the centre of symmetry may lie
@@ -202,7 +213,11 @@ def learn_templates(image: np.ndarray, particle_diameter_px: float,
                     bands: tuple[tuple[float, float], tuple[float, float]] | None = None) -> Templates | None:
     """Learn the spheres' appearances from one image (None if it shows fewer than 3 spheres): the
     templates :func:`_choose_templates` keeps, then each group's look across the view
-    (:func:`granseg.measure.templates.with_columns`), from the spheres they find in ``image``.
+    (:func:`granseg.measure.templates.with_columns`), from the spheres they find in ``image``;
+    last, which groups the outline fit holds (:func:`_held`) and whether lamps on both sides
+    light them (:func:`_side_lit`) decide where the unheld ones are centred
+    (:func:`_symmetric_where_unheld`) and whether the held ones take their x from a circle of
+    the nominal size (:func:`_nominal_where_side_lit`).
 
     The look across the view is learned twice, the second time from the
     spheres found with the first: those near the sides that the frame-wide
@@ -218,15 +233,78 @@ def learn_templates(image: np.ndarray, particle_diameter_px: float,
     across = templates
     for _ in range(COLUMN_ROUNDS):
         across = with_columns(smooth, templates, detect_particles(image, d, across, details=True))
-    return _symmetric_where_unheld(image, smooth, across)
+    spheres = detect_particles(image, d, across, details=True)
+    fitted, unheld = _held(smooth, spheres, across)
+    held = [g for g in fitted if g not in unheld]
+    held_spheres = [spheres[spheres[:, 4] == g] for g in held]
+    side_lit = _side_lit(image, across, held_spheres)
+    across = _symmetric_where_unheld(image, smooth, across, spheres, unheld, held_spheres, side_lit)
+    return _nominal_where_side_lit(across, held, side_lit)
 
 
-def _symmetric_where_unheld(image: np.ndarray, smooth: dict[int, np.ndarray], templates: Templates) -> Templates:
-    """``templates`` with each group whose outline fit follows where it is started (:func:`_follows`,
-    over FOLLOWS) centred where the mean look of its spheres in ``image`` (grey by sign: ``smooth``)
-    is symmetric (:func:`_centre_of_symmetry`), in HELD_ROUNDS rounds: the spheres found again with the
-    re-centred template are fitted from there, and what the fit kept of where the old template put
-    them is taken off in the next round.
+def _nominal_where_side_lit(templates: Templates, held: list[int], side_lit: bool) -> Templates:
+    """``templates`` with the groups ``held`` by their outline fit placed across the view (x) by a
+    circle of the nominal radius, when lamps beside the camera light the spheres from the side
+    (``side_lit``, :func:`_side_lit`); unchanged otherwise.
+
+    Under such lamps a matte sphere's limb away from the nearer lamp fades
+    into the gaps, and a circle free in size hugs the lit limb: physically
+    based tuning packings, centres 1.1-1.5 px outward near the window's
+    sides, spheres there counted outside it. A circle of the nominal size
+    cannot shrink onto one limb (0.1-0.5 px). Its y is not taken: it left
+    the 2-D renderer's spheres, lit from above, up to 0.6 px too low
+    (BENCHMARKS.md, "Spheres placed at the nominal radius"), and under the
+    side lamps it does not take off the y bias either. The 2-D renderer's
+    lamps do not turn its looks across the view, so its maps do not change.
+    """
+    if not side_lit or not held:
+        return templates
+    nominal_x = np.zeros(len(templates.patches), dtype=bool)
+    nominal_x[held] = True
+    return replace(templates, nominal_x=nominal_x)
+
+
+def _x_by_nominal_circle(smooth: dict[int, np.ndarray], found: np.ndarray, templates: Templates) -> np.ndarray:
+    """``found`` (m, >= 5: x, y, radius, correlation, group) with the x of each sphere of a group with
+    ``templates.nominal_x`` from a circle of the nominal radius fitted to its outline, started where
+    the free circle ended (:func:`_nominal_where_side_lit`)."""
+    if templates.nominal_x is None or len(found) == 0:
+        return found
+    group = found[:, 4].astype(int)
+    out = found.copy()
+    for s in np.unique(templates.signs):
+        mine = templates.nominal_x[group] & (templates.signs[group] == s)
+        if mine.any():
+            bias = None if templates.ray_bias is None else templates.ray_bias[group[mine]]
+            out[mine, 0] = fit_outlines(smooth[int(s)], found[mine, :2], np.full(mine.sum(), templates.d / 2),
+                                        templates.d, iterations=NOMINAL_ITERATIONS, ray_bias=bias,
+                                        free_radius=False).centres[:, 0]
+    return out
+
+
+def _held(smooth: dict[int, np.ndarray], spheres: np.ndarray, templates: Templates) -> tuple[list[int], list[int]]:
+    """The groups placed by their outline fit with at least MIN_CONFIRMED of ``spheres`` (m, >= 5: x, y,
+    radius, correlation, group; the image's grey by sign: ``smooth``), and those of them whose fit
+    follows where it is started (:func:`_follows`, over FOLLOWS). Mirror steel placed by a borrowed
+    template (``by_match``) is neither."""
+    fitted = [g for g in range(len(templates.patches))
+              if not (templates.by_match is not None and templates.by_match[g])
+              and (spheres[:, 4] == g).sum() >= MIN_CONFIRMED]
+    unheld = [g for g in fitted
+              if _follows(smooth[int(templates.signs[g])], spheres[spheres[:, 4] == g], templates, g) > FOLLOWS]
+    return fitted, unheld
+
+
+def _symmetric_where_unheld(image: np.ndarray, smooth: dict[int, np.ndarray], templates: Templates,
+                            spheres: np.ndarray, unheld: list[int], held: list[np.ndarray],
+                            side_lit: bool) -> Templates:
+    """``templates`` with each group whose outline fit follows where it is started (``unheld``, found by
+    :func:`_held` among ``spheres``, those found in ``image`` with ``templates``) centred where the
+    mean look of its spheres (grey by sign: ``smooth``) is symmetric (:func:`_centre_of_symmetry`),
+    in HELD_ROUNDS rounds: the spheres found again with the re-centred template are fitted from
+    there, and what the fit kept of where the old template put them is taken off in the next round.
+    ``held``: the spheres of each group the fit holds; ``side_lit``: whether they show lamps on
+    both sides (:func:`_side_lit`).
 
     Transparent glass under lamps beside the camera shows no rim the fit can
     hold to: its edges are the lamps' reflections and the refracted image
@@ -246,15 +324,9 @@ def _symmetric_where_unheld(image: np.ndarray, smooth: dict[int, np.ndarray], te
     (its fit keeps all of a displaced start).
     """
     d = templates.d
-    spheres = detect_particles(image, d, templates, details=True)
-    fitted = [g for g in range(len(templates.patches))  # placed by their outline fit, enough of them
-              if not (templates.by_match is not None and templates.by_match[g])
-              and (spheres[:, 4] == g).sum() >= MIN_CONFIRMED]
-    unheld = [g for g in fitted
-              if _follows(smooth[int(templates.signs[g])], spheres[spheres[:, 4] == g], templates, g) > FOLLOWS]
     if not unheld:
         return templates
-    level = _level(image, smooth, templates, [spheres[spheres[:, 4] == g] for g in fitted if g not in unheld])
+    level = _level(smooth, templates, held) if side_lit else (False, False)
     for round_ in range(HELD_ROUNDS if any(level) else 0):
         if round_:
             spheres = detect_particles(image, d, templates, details=True)
@@ -267,16 +339,20 @@ def _symmetric_where_unheld(image: np.ndarray, smooth: dict[int, np.ndarray], te
     return templates
 
 
-def _level(image: np.ndarray, smooth: dict[int, np.ndarray], templates: Templates,
-           held: list[np.ndarray]) -> tuple[bool, bool]:
-    """Whether the lamps light the spheres in ``image`` symmetrically left to right and top to bottom,
-    read from ``held``, the spheres (m, >= 5: x, y, radius, correlation, group) of each group the
-    outline fit holds: lamps on both sides (every such group's look turns across the view by more
-    than TURN: :func:`_turn`), and in each direction every such group's mean look symmetric within
-    LEVEL diameters of its fitted centres. (False, False) without such a group."""
+def _side_lit(image: np.ndarray, templates: Templates, held: list[np.ndarray]) -> bool:
+    """Whether lamps on both sides of the camera light the spheres in ``image``, read from ``held``,
+    the spheres (m, >= 5: x, y, radius, correlation, group) of each group the outline fit holds:
+    every such group's look turns across the view by more than TURN (:func:`_turn`). False without
+    such a group."""
     grey = _smooth(image, templates.d)[1]
-    if not held or not all(_turn(grey, mine[:, :2], templates) > TURN for mine in held):
-        return False, False
+    return bool(held) and all(_turn(grey, mine[:, :2], templates) > TURN for mine in held)
+
+
+def _level(smooth: dict[int, np.ndarray], templates: Templates, held: list[np.ndarray]) -> tuple[bool, bool]:
+    """Whether side lamps (:func:`_side_lit`) stand level with the camera, left to right and top to
+    bottom: in each direction, every group the outline fit holds (``held``, its spheres (m, >= 5))
+    shows a mean look (grey by sign: ``smooth``) symmetric within LEVEL diameters of its fitted
+    centres."""
     return tuple(all(abs(_centre_of_symmetry(smooth[int(templates.signs[int(mine[0, 4])])], mine[:, :2],
                                              templates, axis)) <= LEVEL * templates.d for mine in held)
                  for axis in (0, 1))
@@ -573,10 +649,11 @@ def detect_particles(image: np.ndarray, particle_diameter_px: float, templates: 
         templates = learn_templates(image, d)
         if templates is None:
             return np.zeros((0, 6 if details else 4))
-    found, rim = _examine(_smooth(image, d, templates.signs), image, templates)
+    smooth = _smooth(image, d, templates.signs)
+    found, rim = _examine(smooth, image, templates)
     if templates.rim_limits is not None:
         found = _one_per_place(found[rim >= templates.rim_limits[found[:, 4].astype(int)]], templates)
-    found = found[_inside(found, image.shape)]
+    found = _x_by_nominal_circle(smooth, found[_inside(found, image.shape)], templates)
     return found if details else found[:, :4]
 
 

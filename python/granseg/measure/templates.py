@@ -63,7 +63,10 @@ class Templates:
     (:func:`granseg.measure.outline.outline_bias`), None for none;
     by_column: per group, None or (edges (COLUMNS - 1,) [px], patches (COLUMNS,
     side, side)): its template in each column of the view, the columns
-    split at ``edges`` in x (:func:`with_columns`); None for none.
+    split at ``edges`` in x (:func:`with_columns`); None for none;
+    nominal_x: (k,) per group, True if its spheres' x comes from a circle of
+    the nominal radius (:func:`granseg.measure.detect._nominal_where_side_lit`),
+    None for all False.
     """
 
     patches: tuple[np.ndarray, ...]
@@ -77,6 +80,7 @@ class Templates:
     by_match: np.ndarray | None = None
     ray_bias: np.ndarray | None = None
     by_column: tuple[tuple[np.ndarray, np.ndarray] | None, ...] | None = None
+    nominal_x: np.ndarray | None = None
 
     @property
     def half(self) -> int:
