@@ -599,7 +599,11 @@ def _ray_bias(smooth: dict[int, np.ndarray], templates: Templates, spheres: np.n
     the axis, BENCHMARKS.md). Keeping only the part that every half of the
     frame (left, right, top, bottom) agreed on was tried on the tuning
     looks and lost against one profile (2-D apparatus counts 2.38 against
-    2.21 %, physically based pom-pp 2.7 against 2.3 %).
+    2.21 %, physically based pom-pp 2.7 against 2.3 %). One profile per
+    band of height, against the physically based looks' y bias that grows
+    towards the top and bottom, was tried too and moved nothing: a bias
+    that shifts a whole side of the outline is a move of the circle, which
+    the residuals the profile is read from never hold.
     """
     bias = np.zeros((len(templates.patches), N_FIT_RAYS))
     by_match = np.zeros(len(bias), bool) if templates.by_match is None else templates.by_match
