@@ -81,6 +81,10 @@ def run(args: argparse.Namespace) -> int:
         print(f"{100 * figures['placed_by_template_match']:.0f} % of the spheres placed where their template "
               "matches best, not by their outline (mirror-like spheres, whose rim reflects their neighbours); "
               "centres_settled still judges their outline fit")
+    if figures.get("x_by_nominal_circle"):  # lamps at both sides light the spheres from the side
+        print(f"{100 * figures['x_by_nominal_circle']:.0f} % of the spheres placed across the view by a circle "
+              "of their nominal size: lamps at both sides light them from the side, and a circle free in size "
+              "would follow the lit limb outward")
     step = float(result.t[1] - result.t[0]) if len(result.t) > 1 else 0.0
     print(f"map written to {result.out} (smoothing: {result.smoothing_frames} frames = "
           f"{result.smoothing_frames * step:.4g} s of recording)")

@@ -225,6 +225,7 @@ def assess(*, n: np.ndarray, n_heavy: np.ndarray, c0: float, first_heights: np.n
            separation: Any | None, n_bad_frames: int, wall_detections: float,
            wall_glare: float = 0.0, exposure_gain: tuple[float, float] = (1.0, 1.0),
            exposure_matched: bool = False, class_shift: tuple[float, int] = (0.0, 0), blur: Any | None = None, by_match: np.ndarray | None = None,
+           by_nominal_x: np.ndarray | None = None,
            gloss_at_spots: bool | None = None, vacant: tuple[int, int] | None = None,
            walls: WallLines | None = None) -> Quality:
     """Run every check on one analysed run.
@@ -251,7 +252,9 @@ def assess(*, n: np.ndarray, n_heavy: np.ndarray, c0: float, first_heights: np.n
     whether each counted sphere was placed by its template's best match
     rather than by its outline (its share is recorded among the figures;
     ``centres_settled`` still judges every sphere's outline fit, which for
-    these spheres says their rim gives it nothing to settle on); vacant: the
+    these spheres says their rim gives it nothing to settle on); by_nominal_x:
+    whether each counted sphere's x came from a circle of the nominal size
+    (side lamps; its share is recorded among the figures); vacant: the
     run's vacancies (places where a sphere would fit between those found,
     :func:`vacancies`) and the spheres found where they were looked for (None:
     not checked); walls: how far the window's lid and plate lines are off the
@@ -335,6 +338,8 @@ def assess(*, n: np.ndarray, n_heavy: np.ndarray, c0: float, first_heights: np.n
         figures["gloss_at_learned_spots"] = bool(gloss_at_spots)
     if by_match is not None and len(by_match):
         figures["placed_by_template_match"] = float(np.mean(by_match))
+    if by_nominal_x is not None and len(by_nominal_x) and by_nominal_x.any():
+        figures["x_by_nominal_circle"] = float(np.mean(by_nominal_x))
     if walls is not None:
         figures["window_lines_d"] = {k: float(v) if np.isfinite(v) else None  # None: too few spheres there
                                      for k, v in (("plate", walls.plate), ("lid", walls.lid))}
