@@ -74,12 +74,10 @@ class FrameSpheres:
     gain_taken_off: whether it was divided out (the run's gain strays by more
     than DRIFT_LIMIT);
     settle: how far [px] the outline fit's last iteration moved each centre;
-    by_match: whether each sphere was placed where its template matches best
-    rather than by its outline (a material learned from the other's matches,
-    :func:`granseg.measure.detect.learn_templates`; None: none was);
-    by_nominal_x: whether each sphere's x came from a circle of the nominal
-    size (side lamps: :func:`granseg.measure.detect._nominal_where_side_lit`;
-    None: none did);
+    placed: per way of placing a sphere other than by its outline, whether
+    each sphere was placed so (:meth:`granseg.measure.templates.Templates.placed`:
+    where its template matches best, a material learned from the other's
+    matches; its x by a circle of the nominal size, under side lamps);
     beside: centres (k, 2) found beyond the window's left and right sides, in
     its rows and clear of lid and plate (not counted; the vacancies check
     looks up to the sides with them), looked for up to reach = (left, right)
@@ -100,8 +98,7 @@ class FrameSpheres:
     gain_taken_off: bool = False
     heavy: np.ndarray | None = None
     p_heavy: np.ndarray | None = None
-    by_match: np.ndarray | None = None
-    by_nominal_x: np.ndarray | None = None
+    placed: dict[str, np.ndarray] = field(default_factory=dict)
     beside: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
     reach: tuple[float, float] = (0.0, 0.0)
     wall_y: np.ndarray = field(default_factory=lambda: np.zeros(0))
@@ -405,15 +402,12 @@ class _FrameWorker:
         if not keep.any():
             raise BadFrame(f"{name}: no spheres detected in the window")
         feats = sphere_features(crop, found[keep, :2], d, self.spots) if describe else np.zeros((keep.sum(), 0))
-        by_match, by_nominal_x = self.templates.by_match, self.templates.nominal_x
-        group = found[keep, 4].astype(int)
         x0, y0, x1, y1 = self.exp.window
         beside = ~inside & clear & (y >= y0) & (y < y1)
         return FrameSpheres(x[keep], y[keep], found[keep, 2], found[keep, 3], feats, found[keep, 5],
                             wall=int((inside & ~clear).sum()), glare=glare, gain=gain,
                             gain_taken_off=self.exposure.drifting,
-                            by_match=None if by_match is None else by_match[group],
-                            by_nominal_x=None if by_nominal_x is None else by_nominal_x[group],
+                            placed=self.templates.placed(found[keep, 4].astype(int)),
                             beside=np.column_stack([x[beside], y[beside]]), reach=self.reach,
                             wall_y=y[inside & ~clear])
 
@@ -642,9 +636,7 @@ def _assess(result: Analysis, shift: tuple[float, int] = (0.0, 0)) -> Quality:
         exposure_matched=any(s.gain_taken_off for s in good),
         class_shift=shift,
         blur=result.classes.blur if learned else None,
-        by_match=np.concatenate([np.zeros(len(s.x), bool) if s.by_match is None else s.by_match for s in good]),
-        by_nominal_x=np.concatenate([np.zeros(len(s.x), bool) if s.by_nominal_x is None else s.by_nominal_x
-                                     for s in good]),
+        placed={name: np.concatenate([s.placed[name] for s in good]) for name in good[0].placed},
         gloss_at_spots=result.classes.gloss_at_spots if learned else None,
         vacant=_vacant(good, result.experiment),
         walls=wall_lines(np.r_[first.y, first.wall_y], result.experiment.window),

@@ -224,8 +224,8 @@ def assess(*, n: np.ndarray, n_heavy: np.ndarray, c0: float, first_heights: np.n
            p_heavy: np.ndarray | None,
            separation: Any | None, n_bad_frames: int, wall_detections: float,
            wall_glare: float = 0.0, exposure_gain: tuple[float, float] = (1.0, 1.0),
-           exposure_matched: bool = False, class_shift: tuple[float, int] = (0.0, 0), blur: Any | None = None, by_match: np.ndarray | None = None,
-           by_nominal_x: np.ndarray | None = None,
+           exposure_matched: bool = False, class_shift: tuple[float, int] = (0.0, 0), blur: Any | None = None,
+           placed: dict[str, np.ndarray] | None = None,
            gloss_at_spots: bool | None = None, vacant: tuple[int, int] | None = None,
            walls: WallLines | None = None) -> Quality:
     """Run every check on one analysed run.
@@ -248,13 +248,14 @@ def assess(*, n: np.ndarray, n_heavy: np.ndarray, c0: float, first_heights: np.n
     higher [px] the light class's centres were found than the heavy's, taken
     off, and the touching pairs it was read from (outline.class_shift);
     blur: the :class:`~granseg.measure.classify.BlurTest` that chose the
-    classes (None if none was made), recorded among the figures; by_match:
-    whether each counted sphere was placed by its template's best match
-    rather than by its outline (its share is recorded among the figures;
-    ``centres_settled`` still judges every sphere's outline fit, which for
-    these spheres says their rim gives it nothing to settle on); by_nominal_x:
-    whether each counted sphere's x came from a circle of the nominal size
-    (side lamps; its share is recorded among the figures); vacant: the
+    classes (None if none was made), recorded among the figures; placed: per
+    way of placing a sphere other than by its outline (its template's best
+    match, ``placed_by_template_match``; its x by a circle of the nominal
+    size under side lamps, ``x_by_nominal_circle``), whether each counted
+    sphere was placed so; each share is recorded among the figures under
+    that name (``centres_settled`` still judges every sphere's outline fit,
+    which for spheres placed by their template says their rim gives it
+    nothing to settle on); vacant: the
     run's vacancies (places where a sphere would fit between those found,
     :func:`vacancies`) and the spheres found where they were looked for (None:
     not checked); walls: how far the window's lid and plate lines are off the
@@ -336,10 +337,9 @@ def assess(*, n: np.ndarray, n_heavy: np.ndarray, c0: float, first_heights: np.n
         figures.update(labelled_heavy=separation.n_heavy, labelled_light=separation.n_light)
     if gloss_at_spots is not None:
         figures["gloss_at_learned_spots"] = bool(gloss_at_spots)
-    if by_match is not None and len(by_match):
-        figures["placed_by_template_match"] = float(np.mean(by_match))
-    if by_nominal_x is not None and len(by_nominal_x) and by_nominal_x.any():
-        figures["x_by_nominal_circle"] = float(np.mean(by_nominal_x))
+    for name, flags in (placed or {}).items():
+        if len(flags):
+            figures[name] = float(np.mean(flags))
     if walls is not None:
         figures["window_lines_d"] = {k: float(v) if np.isfinite(v) else None  # None: too few spheres there
                                      for k, v in (("plate", walls.plate), ("lid", walls.lid))}

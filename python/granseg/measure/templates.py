@@ -82,6 +82,13 @@ class Templates:
     by_column: tuple[tuple[np.ndarray, np.ndarray] | None, ...] | None = None
     nominal_x: np.ndarray | None = None
 
+    def placed(self, groups: np.ndarray) -> dict[str, np.ndarray]:
+        """How the spheres of ``groups`` (m,) are placed other than by their outline, per sphere: by
+        their template's best match (``by_match``) and, across the view, by a circle of the nominal
+        size (``nominal_x``). Keyed by the names the map's quality record gives their shares."""
+        flags = {"placed_by_template_match": self.by_match, "x_by_nominal_circle": self.nominal_x}
+        return {name: np.zeros(len(groups), bool) if flag is None else flag[groups] for name, flag in flags.items()}
+
     @property
     def half(self) -> int:
         return int(np.ceil(TEMPLATE_HALF * self.d))
