@@ -2,16 +2,20 @@
 
     PYTHONPATH=python python benches/bench_measure.py [--frames 30] [--diameter 38] [--workers 2] [--dir DIR]
     PYTHONPATH=python python benches/bench_measure.py --frames-from tests/fixtures/pbr/pom-pp --frames 120
+    PYTHONPATH=python python benches/bench_measure.py --frames 120 --diameter 80 --dir DIR --repeat 1 --split-processes
 
 Renders the frames once (granseg.synth, steel/PP, two side lamps, JPEG 90;
 into DIR and kept there when given, reused if DIR already holds them), then
 times the whole analysis (decode, undistort, detect, classify, bin) with the
-given number of worker processes, best of --repeat runs. It also prints
+given number of worker threads, best of --repeat runs. It also prints
 the run's fixed part, the exposure survey and the learning of the spheres'
 looks from the first frame (done once per run, before the workers start), and
 the rate of the rest, which is what a long video sees. ``--frames-from DIR``
 analyses the frames of DIR instead (a physically based fixture, say), each
-used over and over until there are ``--frames``.
+used over and over until there are ``--frames``. ``--split-processes`` then
+also splits the frames in ``--workers`` consecutive runs and analyses each in
+its own process with one thread, all at once: what processes instead of
+threads would give (the rate after each run's fixed part, summed).
 
 Shared machines differ from day to day (this bench read 12-14 frames/s one
 day and 20-21 the next on the same tree), so each run also times a fixed
@@ -87,6 +91,48 @@ def _repeated(source: Path, frames: int, out: Path) -> Path:
     return out
 
 
+def _split(source: Path, parts: int, out: Path) -> list[Path]:
+    """``source``'s frames in ``parts`` folders of links, consecutive runs of them, each with the experiment.json."""
+    images = sorted(source.glob("*.jpg"))
+    folders = []
+    for k, chunk in enumerate(np.array_split(np.arange(len(images)), parts)):
+        folder = out / f"part{k}"
+        folder.mkdir(parents=True)
+        (folder / "experiment.json").write_bytes((source / "experiment.json").read_bytes())
+        for i, j in enumerate(chunk):
+            (folder / f"frame_{i:05d}.jpg").symlink_to(images[j].resolve())
+        folders.append(folder)
+    return folders
+
+
+def _one_process(folder: Path) -> tuple[int, float, float]:
+    """Frames, seconds and fixed-part seconds of one single-threaded analysis of ``folder`` (pool worker,
+    started with the others at the barrier)."""
+    import warnings
+
+    cv2.setNumThreads(1)
+    _BARRIER.wait()
+    with _FixedPart() as part, warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # a part that starts mid-run is not stratified: its checks fail
+        start = time.perf_counter()
+        analyze(folder, save=False, progress=False, workers=1)
+        took = time.perf_counter() - start
+    return len(list(folder.glob("*.jpg"))), took, part.seconds
+
+
+def split_processes(source: Path, parts: int, tmp: Path) -> str:
+    """The frames split in ``parts`` consecutive runs, each analysed by its own one-threaded process, all at
+    once: the rate after each run's fixed part, summed (what processes instead of threads would give)."""
+    folders = _split(source, parts, tmp / "split")
+    context = multiprocessing.get_context("spawn")
+    start_together = context.Barrier(parts)
+    with ProcessPoolExecutor(parts, mp_context=context, initializer=_join, initargs=(start_together,)) as pool:
+        runs = list(pool.map(_one_process, folders))
+    after = sum(n - 1 for n, _, _ in runs) / max(took - fixed for _, took, fixed in runs)
+    return (f"split in {parts} processes of one thread each, all at once: fixed parts "
+            f"{', '.join(f'{fixed:.2f}' for _, _, fixed in runs)} s, then {after:.1f} frames/s together")
+
+
 class _FixedPart:
     """Seconds spent in the run's fixed part (the frame worker's survey and learn), timed around them."""
 
@@ -123,6 +169,8 @@ def main() -> None:
     ap.add_argument("--repeat", type=int, default=2)
     ap.add_argument("--frames-from", type=Path, default=None,
                     help="analyse this folder's frames (and experiment.json), repeated up to --frames")
+    ap.add_argument("--split-processes", action="store_true",
+                    help="also analyse the frames split in --workers runs, one process of one thread each")
     args = ap.parse_args()
     c = np.zeros((args.frames, 15))
     c[:, 8:] = 1.0
@@ -146,12 +194,15 @@ def main() -> None:
             if took < elapsed:
                 elapsed, fixed = took, part.seconds
         after = yardstick_ms(first, args.workers)
+        split = split_processes(d, args.workers, Path(tmp)) if args.split_processes else None
     per = a.n.sum(axis=1).mean()
     diameter = a.experiment.particle_diameter_px
     print(f"{args.frames} frames {w}x{h}, D = {diameter:g} px, {per:.0f} spheres/frame in the window, "
           f"{args.workers} workers: {elapsed:.2f} s, {args.frames / elapsed:.1f} frames/s "
           f"(survey and learning {fixed:.2f} s, then {(args.frames - 1) / (elapsed - fixed):.1f} frames/s); "
           f"machine yardstick {before:.0f} ms before, {after:.0f} ms after")
+    if split is not None:
+        print(split)
 
 
 if __name__ == "__main__":
