@@ -263,66 +263,12 @@ def assess(*, n: np.ndarray, n_heavy: np.ndarray, c0: float, first_heights: np.n
     """
     n_t, n_layers = n.shape
     good = n.sum(axis=1) > 0
-    checks: list[Check] = []
-    if separation is not None:
-        # 0.95: every pair of distinct materials of the test renderers scores
-        # >= 0.99; two identical materials score 0.4-0.6
-        checks.append(_check("class_separation", separation.cv_accuracy, 0.95, ">=",
-                             "cross-validated accuracy telling the first frame's heavy from light spheres"))
-        # 0.5: a height trend that explains half the gap makes the classes as much
-        # a map of the lighting (or of the motion blur) as of the materials. Only
-        # asked of classes that separate: of two that do not, the gap is noise.
-        if separation.cv_accuracy >= 0.95:
-            checks.append(_check("class_by_height", separation.height_share, 0.5, "<=",
-                                 "share of the class difference explained by a sphere's height"))
-    if p_heavy is not None and len(p_heavy):
-        amb = float(np.mean((p_heavy > AMBIGUOUS[0]) & (p_heavy < AMBIGUOUS[1])))
-        # 0.05: distinct materials leave < 1 % ambiguous; a merged class leaves tens of %
-        checks.append(_check("ambiguous_spheres", amb, 0.05, "<=",
-                             f"share of spheres with p_heavy in {AMBIGUOUS}"))
     first = int(np.argmax(good)) if good.any() else 0
-    n0 = n[first].sum()
-    share0 = n_heavy[first].sum() / max(n0, 1)
-    # the first frame's heavy share should equal c0 up to how rows fall at
-    # the interface (half a row of 15: 0.035) and counting noise
-    tol = 0.06 + 2 * np.sqrt(c0 * (1 - c0) / max(n0, 1))
-    checks.append(_check("initial_heavy_share", abs(share0 - c0), tol, "<=",
-                         f"|first frame's heavy share {share0:.3f} - c0 {c0:.3f}|"))
-    labels = interface_labels(first_heights, c0, n_layers, MARGIN)
-    heavy = np.asarray(first_heavy, dtype=bool)
-    wrong_below = heavy[labels == 0].mean() if (labels == 0).any() else 0.0
-    wrong_above = (~heavy[labels == 1]).mean() if (labels == 1).any() else 0.0
-    # 0.1: a swapped assignment puts ~100 % on the wrong side
-    checks.append(_check("first_frame_order", max(wrong_below, wrong_above), 0.1, "<=",
-                         f"first frame: heavy below the interface {wrong_below:.3f}, "
-                         f"light above it {wrong_above:.3f}"))
-    if len(scores):
-        # 0.5: real spheres of every test look match their template at >= 0.8
-        # in the median; a frame of background and gaps does not
-        checks.append(_check("detection_confidence", float(np.median(scores)), 0.5, ">=",
-                             "median correlation of the spheres with their template"))
-    if vacant is not None and (vacant[0] or vacant[1]):  # (0, 0): a window too small to search
-        checks.append(_check("vacancies", vacant[0] / max(vacant[1], 1), VACANCY_SHARE, "<=",
-                             "places with room for a sphere between those found, per sphere found"))
-    if walls is not None and np.isfinite([walls.plate, walls.lid]).any():
-        checks.append(_check("window_lines", np.nanmax(np.abs([walls.plate, walls.lid])), WALL_LINE_SLACK, "<=",
-                             walls.about()))
-    if settle is not None and len(settle):
-        checks.append(_check("centres_settled", float(np.percentile(settle, 90)), SETTLE_PX, "<=",
-                             "90th percentile of the outline fit's last step [px]"))
-    if good.sum() >= 3:
-        layer_cv = _layer_cv(n[good])
-        # 0.35: sheared layers of ~10 spheres vary by 10-20 %; a layer that
-        # gains and loses spheres by a third is mis-binned or mis-detected
-        checks.append(_check("count_stability", float(np.nanmax(layer_cv)), 0.35, "<=",
-                             "largest variation (std / mean) of a layer's count over time"))
-        totals = n[good].sum(axis=1)
-        steady = np.mean(np.abs(totals / np.median(totals) - 1) <= 0.15)
-        checks.append(_check("frame_totals", float(steady), 0.95, ">=",
-                             "share of frames whose sphere count is within 15 % of the median"))
-        checks.append(depth_mean_check(n[good], n_heavy[good], c0))
-    checks.append(_check("bad_frames", n_bad_frames / max(n_t, 1), 0.05, "<=",
-                         "share of frames without a reading"))
+    checks = [*_class_checks(separation, p_heavy),
+              *_first_frame_checks(n[first], n_heavy[first], c0, first_heights, first_heavy, n_layers),
+              *_detection_checks(scores, vacant, walls, settle),
+              *_count_checks(n[good], n_heavy[good], c0),
+              _check("bad_frames", n_bad_frames / max(n_t, 1), 0.05, "<=", "share of frames without a reading")]
     figures = {
         "spheres_per_frame": float(n[good].sum(axis=1).mean()) if good.any() else 0.0,
         "wall_detections_per_frame": float(wall_detections),
@@ -348,6 +294,86 @@ def assess(*, n: np.ndarray, n_heavy: np.ndarray, c0: float, first_heights: np.n
                        blur_disagreements_near_plate=int(blur.near_plate),
                        evidence_against_blur=float(blur.evidence_against_blur))
     return Quality(tuple(checks), figures)
+
+
+def _class_checks(separation: Any | None, p_heavy: np.ndarray | None) -> list[Check]:
+    """How well the learned classes tell the materials apart (none with explicit colour ranges)."""
+    checks = []
+    if separation is not None:
+        # 0.95: every pair of distinct materials of the test renderers scores
+        # >= 0.99; two identical materials score 0.4-0.6
+        checks.append(_check("class_separation", separation.cv_accuracy, 0.95, ">=",
+                             "cross-validated accuracy telling the first frame's heavy from light spheres"))
+        # 0.5: a height trend that explains half the gap makes the classes as much
+        # a map of the lighting (or of the motion blur) as of the materials. Only
+        # asked of classes that separate: of two that do not, the gap is noise.
+        if separation.cv_accuracy >= 0.95:
+            checks.append(_check("class_by_height", separation.height_share, 0.5, "<=",
+                                 "share of the class difference explained by a sphere's height"))
+    if p_heavy is not None and len(p_heavy):
+        amb = float(np.mean((p_heavy > AMBIGUOUS[0]) & (p_heavy < AMBIGUOUS[1])))
+        # 0.05: distinct materials leave < 1 % ambiguous; a merged class leaves tens of %
+        checks.append(_check("ambiguous_spheres", amb, 0.05, "<=",
+                             f"share of spheres with p_heavy in {AMBIGUOUS}"))
+    return checks
+
+
+def _first_frame_checks(n0: np.ndarray, n0_heavy: np.ndarray, c0: float, heights: np.ndarray,
+                        heavy: np.ndarray, n_layers: int) -> list[Check]:
+    """Whether the first good frame shows the stratified start: its heavy share against c0 (from its
+    counts per layer, ``n0`` and ``n0_heavy``) and its heavy spheres above the interface (from its
+    spheres' ``heights`` [diameters] and classes, ``heavy``)."""
+    share0 = n0_heavy.sum() / max(n0.sum(), 1)
+    # the first frame's heavy share should equal c0 up to how rows fall at
+    # the interface (half a row of 15: 0.035) and counting noise
+    tol = 0.06 + 2 * np.sqrt(c0 * (1 - c0) / max(n0.sum(), 1))
+    labels = interface_labels(heights, c0, n_layers, MARGIN)
+    heavy = np.asarray(heavy, dtype=bool)
+    wrong_below = heavy[labels == 0].mean() if (labels == 0).any() else 0.0
+    wrong_above = (~heavy[labels == 1]).mean() if (labels == 1).any() else 0.0
+    return [_check("initial_heavy_share", abs(share0 - c0), tol, "<=",
+                   f"|first frame's heavy share {share0:.3f} - c0 {c0:.3f}|"),
+            # 0.1: a swapped assignment puts ~100 % on the wrong side
+            _check("first_frame_order", max(wrong_below, wrong_above), 0.1, "<=",
+                   f"first frame: heavy below the interface {wrong_below:.3f}, light above it {wrong_above:.3f}")]
+
+
+def _detection_checks(scores: np.ndarray, vacant: tuple[int, int] | None, walls: WallLines | None,
+                      settle: np.ndarray | None) -> list[Check]:
+    """Whether the spheres were found, all of them, against walls where the window says, and placed."""
+    checks = []
+    if len(scores):
+        # 0.5: real spheres of every test look match their template at >= 0.8
+        # in the median; a frame of background and gaps does not
+        checks.append(_check("detection_confidence", float(np.median(scores)), 0.5, ">=",
+                             "median correlation of the spheres with their template"))
+    if vacant is not None and (vacant[0] or vacant[1]):  # (0, 0): a window too small to search
+        checks.append(_check("vacancies", vacant[0] / max(vacant[1], 1), VACANCY_SHARE, "<=",
+                             "places with room for a sphere between those found, per sphere found"))
+    if walls is not None and np.isfinite([walls.plate, walls.lid]).any():
+        checks.append(_check("window_lines", np.nanmax(np.abs([walls.plate, walls.lid])), WALL_LINE_SLACK, "<=",
+                             walls.about()))
+    if settle is not None and len(settle):
+        checks.append(_check("centres_settled", float(np.percentile(settle, 90)), SETTLE_PX, "<=",
+                             "90th percentile of the outline fit's last step [px]"))
+    return checks
+
+
+def _count_checks(n: np.ndarray, n_heavy: np.ndarray, c0: float) -> list[Check]:
+    """How steady the counts of the frames with a reading (``n``, ``n_heavy``: (k, n_layers)) are over
+    time, and whether they keep the bed's heavy share; none with fewer than 3 such frames."""
+    if len(n) < 3:
+        return []
+    layer_cv = _layer_cv(n)
+    totals = n.sum(axis=1)
+    steady = np.mean(np.abs(totals / np.median(totals) - 1) <= 0.15)
+    # 0.35: sheared layers of ~10 spheres vary by 10-20 %; a layer that
+    # gains and loses spheres by a third is mis-binned or mis-detected
+    return [_check("count_stability", float(np.nanmax(layer_cv)), 0.35, "<=",
+                   "largest variation (std / mean) of a layer's count over time"),
+            _check("frame_totals", float(steady), 0.95, ">=",
+                   "share of frames whose sphere count is within 15 % of the median"),
+            depth_mean_check(n, n_heavy, c0)]
 
 
 def depth_mean_check(n: np.ndarray, n_heavy: np.ndarray, c0: float) -> Check:
