@@ -16,6 +16,8 @@ used over and over until there are ``--frames``. ``--split-processes`` then
 also splits the frames in ``--workers`` consecutive runs and analyses each in
 its own process with one thread, all at once: what processes instead of
 threads would give (the rate after each run's fixed part, summed).
+``--frame-worker`` also times the per-frame work alone on one thread (frames
+decoded beforehand): the figure a change to the per-frame code moves.
 
 Shared machines differ from day to day (this bench read 12-14 frames/s one
 day and 20-21 the next on the same tree), so each run also times a fixed
@@ -40,6 +42,7 @@ import cv2
 import numpy as np
 
 from granseg.measure import analyze, pipeline
+from granseg.measure.experiment import load_experiment
 from granseg.synth import render_frames
 
 
@@ -120,6 +123,24 @@ def _one_process(folder: Path) -> tuple[int, float, float]:
     return len(list(folder.glob("*.jpg"))), took, part.seconds
 
 
+def frame_worker_ms(source: Path, frames: int = 20, rounds: int = 3) -> float:
+    """Milliseconds per frame of the frame worker alone (undistort, crop, detect, describe; decoded
+    beforehand), one thread, on the first ``frames`` frames: the least of ``rounds`` rounds. What a
+    change to the per-frame code moves, without the decoding, the threads and the fixed part."""
+    cv2.setNumThreads(1)
+    exp = load_experiment(source / "experiment.json")
+    images = [cv2.imread(str(p)) for p in sorted(source.glob("*.jpg"))[:frames]]
+    worker = pipeline._FrameWorker(exp, images[0].shape[1::-1])
+    worker.learn(images[0])
+    best = np.inf
+    for _ in range(rounds):
+        start = time.perf_counter()
+        for i, image in enumerate(images):
+            worker(str(i), image)
+        best = min(best, (time.perf_counter() - start) / len(images))
+    return 1e3 * best
+
+
 def split_processes(source: Path, parts: int, tmp: Path) -> str:
     """The frames split in ``parts`` consecutive runs, each analysed by its own one-threaded process, all at
     once: the rate after each run's fixed part, summed (what processes instead of threads would give)."""
@@ -169,6 +190,8 @@ def main() -> None:
     ap.add_argument("--repeat", type=int, default=2)
     ap.add_argument("--frames-from", type=Path, default=None,
                     help="analyse this folder's frames (and experiment.json), repeated up to --frames")
+    ap.add_argument("--frame-worker", action="store_true",
+                    help="also time the frame worker alone on one thread (ms per frame, first 20 frames)")
     ap.add_argument("--split-processes", action="store_true",
                     help="also analyse the frames split in --workers runs, one process of one thread each")
     args = ap.parse_args()
@@ -195,6 +218,7 @@ def main() -> None:
                 elapsed, fixed = took, part.seconds
         after = yardstick_ms(first, args.workers)
         split = split_processes(d, args.workers, Path(tmp)) if args.split_processes else None
+        alone = frame_worker_ms(d) if args.frame_worker else None
     per = a.n.sum(axis=1).mean()
     diameter = a.experiment.particle_diameter_px
     print(f"{args.frames} frames {w}x{h}, D = {diameter:g} px, {per:.0f} spheres/frame in the window, "
@@ -203,6 +227,8 @@ def main() -> None:
           f"machine yardstick {before:.0f} ms before, {after:.0f} ms after")
     if split is not None:
         print(split)
+    if alone is not None:
+        print(f"frame worker alone, one thread: {alone:.1f} ms/frame (least of 3 rounds over 20 frames)")
 
 
 if __name__ == "__main__":

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
+import granseg.measure.outline as outline_module
 from granseg.measure.detect import (
     TURN,
     _centre_of_symmetry,
@@ -273,6 +274,26 @@ def test_fit_outlines_takes_more_rays_than_remap_rows():
     part = fit_outlines(smooth, many[:50], radii[:50], d)
     np.testing.assert_allclose(whole.centres[:50], part.centres, atol=1e-9)
     np.testing.assert_allclose(whole.strength[:50], part.strength, atol=1e-9)
+
+
+@pytest.mark.parametrize("d", [20.0, 34.0, 80.0])
+def test_the_rim_search_samples_only_what_it_can_reach(monkeypatch, d):
+    """The rays are sampled only over the band the rim may lie in and the running mean around it
+    (outline._reach): every centre, radius, strength and residual is that of the whole span, to the
+    bit, with spheres of two sizes and a band cut by the span's inner end."""
+    image, centres = _disk_scene(d, seed=3)
+    smooth = cv2.GaussianBlur(image.astype(np.float32), (0, 0), 0.5)
+    radii = np.where(np.arange(len(centres)) % 2, 0.5 * d, 0.44 * d)
+    start = centres + np.array([0.8, -0.6])
+    trimmed = fit_outlines(smooth, start, radii, d)
+    span = np.arange(0.65 * radii.max(), 1.4 * radii.max(), 0.5)
+    band = outline_module.RIM_SEARCH_PX + outline_module.RIM_SEARCH_SIZE * radii
+    reach = outline_module._reach(span, radii, band, max(3, int(0.3 * d) | 1))
+    assert len(reach) < len(span) if d >= 80 else len(reach) <= len(span)
+    monkeypatch.setattr(outline_module, "_reach", lambda steps, *_: steps)
+    whole = fit_outlines(smooth, start, radii, d)
+    for field in ("centres", "radius", "strength", "inlier", "step", "residual"):
+        np.testing.assert_array_equal(getattr(trimmed, field), getattr(whole, field))
 
 
 def _packed_frames(seed: int, n_frames: int = 6, d: float = 30.0, shift: float = 0.0, noise: float = 0.15):
