@@ -49,13 +49,15 @@ lamps, the spheres kept take their x from the nominal circle
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from dataclasses import replace
+from typing import Any
 
 import cv2
 import numpy as np
 from scipy.spatial import cKDTree
 
-from granseg.measure.outline import N_FIT_RAYS, fit_outlines, outline_bias, refine_circles
+from granseg.measure.outline import N_FIT_RAYS, Outlines, fit_outlines, outline_bias, refine_circles
 from granseg.measure.templates import (
     Templates,
     build_templates,
@@ -270,16 +272,28 @@ def _x_by_nominal_circle(smooth: dict[int, np.ndarray], found: np.ndarray, templ
     the free circle ended (:func:`_nominal_where_side_lit`)."""
     if templates.nominal_x is None or len(found) == 0:
         return found
-    group = found[:, 4].astype(int)
     out = found.copy()
-    for s in np.unique(templates.signs):
-        mine = templates.nominal_x[group] & (templates.signs[group] == s)
-        if mine.any():
-            bias = None if templates.ray_bias is None else templates.ray_bias[group[mine]]
-            out[mine, 0] = fit_outlines(smooth[int(s)], found[mine, :2], np.full(mine.sum(), templates.d / 2),
-                                        templates.d, iterations=NOMINAL_ITERATIONS, ray_bias=bias,
-                                        free_radius=False).centres[:, 0]
+    for mine, outlines in _fit_by_sign(smooth, found, templates, templates.nominal_x[found[:, 4].astype(int)],
+                                       radius=templates.d / 2, iterations=NOMINAL_ITERATIONS, free_radius=False):
+        out[mine, 0] = outlines.centres[:, 0]
     return out
+
+
+def _fit_by_sign(smooth: dict[int, np.ndarray], found: np.ndarray, templates: Templates,
+                 which: np.ndarray | None = None, radius: float | None = None,
+                 **fit: Any) -> Iterator[tuple[np.ndarray, Outlines]]:
+    """The outline fits of the spheres of ``found`` (m, >= 5: x, y, radius, correlation, group; those
+    of the mask ``which``, default all), each on the image where its group's spheres are bright
+    (``smooth`` by sign) with its group's ray bias, about its own radius or ``radius`` for all:
+    (mask, :class:`~granseg.measure.outline.Outlines`) per polarity. ``fit``: fit_outlines' options."""
+    group = found[:, 4].astype(int)
+    sign = templates.signs[group]
+    which = np.ones(len(found), bool) if which is None else which
+    for s in np.unique(sign[which]):
+        mine = which & (sign == s)
+        bias = None if templates.ray_bias is None else templates.ray_bias[group[mine]]
+        radii = found[mine, 2] if radius is None else np.full(mine.sum(), radius)
+        yield mine, fit_outlines(smooth[int(s)], found[mine, :2], radii, templates.d, ray_bias=bias, **fit)
 
 
 def _held(smooth: dict[int, np.ndarray], spheres: np.ndarray, templates: Templates) -> tuple[list[int], list[int]]:
@@ -713,11 +727,7 @@ def _examine(smooth: dict[int, np.ndarray], image: np.ndarray, templates: Templa
     found = np.column_stack([found, np.zeros(len(found))])
     matched = None if templates.by_match is None else found[:, :2].copy()
     rim = np.empty(len(found))
-    sign = templates.signs[found[:, 4].astype(int)]
-    for s in np.unique(sign):  # each group's outline on the image where its spheres are bright
-        mine = sign == s
-        bias = None if templates.ray_bias is None else templates.ray_bias[found[mine, 4].astype(int)]
-        outlines = fit_outlines(smooth[int(s)], found[mine, :2], found[mine, 2], templates.d, ray_bias=bias)
+    for mine, outlines in _fit_by_sign(smooth, found, templates):
         found[mine, :2] = outlines.centres
         found[mine, 5] = outlines.step
         with np.errstate(divide="ignore"):
