@@ -14,9 +14,11 @@ from granseg.measure.detect import (
     TURN,
     _centre_of_symmetry,
     _follows,
+    _mirror_shift,
     _packing,
     _smooth,
     _turn,
+    _y_by_own_symmetry,
     detect_particles,
     learn_templates,
 )
@@ -456,6 +458,30 @@ def test_the_centre_of_a_symmetric_look_is_found_from_displaced_centres(shift):
     smooth = image.astype(np.float32)
     assert _centre_of_symmetry(smooth, off, templates) == pytest.approx(-shift[1], abs=0.3)
     assert _centre_of_symmetry(smooth, off, templates, axis=0) == pytest.approx(-shift[0], abs=0.3)
+
+
+@pytest.mark.parametrize("shift", [(0.0, 2.2), (1.3, -1.7), (-2.0, 0.6)])
+def test_each_sphere_is_found_where_its_own_look_is_symmetric(shift):
+    """Spheres whose look is symmetric about their centres, each given ``shift`` off (within
+    OWN_SYMMETRY_SPAN d): the line about which each one's own look is most symmetric lies ``shift``
+    back, top to bottom and left to right, to a tenth of a pixel in the median; with the group
+    marked ``symmetric_y`` only y is moved."""
+    d = 34.0
+    image, centres = _glassy_scene(d, 2)
+    inside = np.all((centres > 0.8 * d) & (centres < np.array(image.shape[::-1]) - 0.8 * d), axis=1)
+    off = centres[inside] + shift
+    smooth = image.astype(np.float32)
+    for axis in (0, 1):
+        back = _mirror_shift(smooth, off, d, axis)
+        assert np.median(np.abs(back + shift[axis])) < 0.1, (axis, np.median(back))
+    templates = learn_templates(image, d)
+    found = np.column_stack([off, np.full(len(off), d / 2), np.ones(len(off)), np.zeros(len(off))])
+    marked = replace(templates, symmetric_y=np.ones(len(templates.patches), bool))
+    by_sign = _smooth(image, d, templates.signs)
+    moved = _y_by_own_symmetry(by_sign, found, marked)
+    np.testing.assert_array_equal(moved[:, [0, 2, 3, 4]], found[:, [0, 2, 3, 4]])
+    assert np.median(np.abs(moved[:, 1] - centres[inside, 1])) < 0.1
+    np.testing.assert_array_equal(_y_by_own_symmetry(by_sign, found, templates), found)
 
 
 def test_a_recentred_template_moves_its_matches():

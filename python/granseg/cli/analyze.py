@@ -85,6 +85,9 @@ def run(args: argparse.Namespace) -> int:
         print(f"{100 * figures['x_by_nominal_circle']:.0f} % of the spheres placed across the view by a circle "
               "of their nominal size: lamps at both sides light them from the side, and a circle free in size "
               "would follow the lit limb outward")
+    if figures.get("y_by_own_symmetry"):  # a kind of sphere whose outline fit stays where it starts
+        print(f"{100 * figures['y_by_own_symmetry']:.0f} % of the spheres placed up and down where their own "
+              "look is symmetric: their outline gives the fit nothing to hold to (transparent spheres)")
     step = float(result.t[1] - result.t[0]) if len(result.t) > 1 else 0.0
     print(f"map written to {result.out} (smoothing: {result.smoothing_frames} frames = "
           f"{result.smoothing_frames * step:.4g} s of recording)")

@@ -251,7 +251,8 @@ def assess(*, n: np.ndarray, n_heavy: np.ndarray, c0: float, first_heights: np.n
     classes (None if none was made), recorded among the figures; placed: per
     way of placing a sphere other than by its outline (its template's best
     match, ``placed_by_template_match``; its x by a circle of the nominal
-    size under side lamps, ``x_by_nominal_circle``), whether each counted
+    size under side lamps, ``x_by_nominal_circle``; its y where its own look
+    is symmetric, ``y_by_own_symmetry``), whether each counted
     sphere was placed so; each share is recorded among the figures under
     that name (``centres_settled`` still judges every sphere's outline fit,
     which for spheres placed by their template says their rim gives it

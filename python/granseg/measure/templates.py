@@ -66,7 +66,9 @@ class Templates:
     split at ``edges`` in x (:func:`with_columns`); None for none;
     nominal_x: (k,) per group, True if its spheres' x comes from a circle of
     the nominal radius (:func:`granseg.measure.detect._nominal_where_side_lit`),
-    None for all False.
+    None for all False; symmetric_y: (k,) per group, True if each of its
+    spheres' y is moved to where its own look is most symmetric top to bottom
+    (:func:`granseg.measure.detect._y_by_own_symmetry`), None for all False.
     """
 
     patches: tuple[np.ndarray, ...]
@@ -81,12 +83,15 @@ class Templates:
     ray_bias: np.ndarray | None = None
     by_column: tuple[tuple[np.ndarray, np.ndarray] | None, ...] | None = None
     nominal_x: np.ndarray | None = None
+    symmetric_y: np.ndarray | None = None
 
     def placed(self, groups: np.ndarray) -> dict[str, np.ndarray]:
         """How the spheres of ``groups`` (m,) are placed other than by their outline, per sphere: by
-        their template's best match (``by_match``) and, across the view, by a circle of the nominal
-        size (``nominal_x``). Keyed by the names the map's quality record gives their shares."""
-        flags = {"placed_by_template_match": self.by_match, "x_by_nominal_circle": self.nominal_x}
+        their template's best match (``by_match``), across the view by a circle of the nominal size
+        (``nominal_x``) and up and down where their own look is symmetric (``symmetric_y``). Keyed
+        by the names the map's quality record gives their shares."""
+        flags = {"placed_by_template_match": self.by_match, "x_by_nominal_circle": self.nominal_x,
+                 "y_by_own_symmetry": self.symmetric_y}
         return {name: np.zeros(len(groups), bool) if flag is None else flag[groups] for name, flag in flags.items()}
 
     @property
