@@ -9,8 +9,9 @@ bottom (``detect._centre_of_symmetry``), how far its look turns across the view
 the fit holds), and the mean and sd of the centres' error against the
 truth [px], with the last step of learning (``detect._symmetric_where_unheld``:
 a group that keeps more than ``FOLLOWS`` is centred where its mean look is
-symmetric, where the held groups show lamps on both sides, level) and
-without it::
+symmetric, where the held groups show lamps on both sides, level, and each
+of its spheres then moved up or down to where its own look is symmetric,
+``detect._y_by_own_symmetry``) and without it::
 
     PYTHONPATH=python python benches/bench_glass_centring.py --pbr /tmp/pbr-tune --looks glass-pp glass-pom pom-pp
     PYTHONPATH=python python benches/bench_glass_centring.py --scenes all --seeds 7 8
