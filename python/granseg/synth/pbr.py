@@ -719,7 +719,12 @@ def render_pbr_frames(
         noise 1.5 grey levels); 0 for none.
     jpeg_quality : JPEG quality 1-100, None for PNG.
     colours : {material: (r, g, b)} linear diffuse albedo overrides.
-    spp : samples per pixel of the path tracer.
+    spp : samples per pixel of the path tracer. The sensor noise draws from the
+        generator that also gives each later frame its materials, and its
+        Poisson draws use as many numbers as the image asks for: rendered at
+        another ``spp``, ``noise``, ``lighting`` or exposure, frame 0 is the
+        same scene and the later frames keep their positions but not their
+        materials (kept so that the fixtures render as committed).
     second_layer : model the partly hidden second layer of grains.
     variant : mitsuba variant (default llvm_ad_rgb if a libLLVM >= 17 is
         found, else scalar_rgb; or $GRANSEG_MITSUBA_VARIANT).
