@@ -138,8 +138,9 @@ FOLLOWS = 0.5
 # (physically based tuning packings, every matte group: 0.55-0.63; 2-D
 # renderer, lamps above, one lamp to the left, diffuse light, blurred: 0.04
 # at most). Level lamps leave its mean look symmetric about its fitted
-# centres within LEVEL diameters (physically based tuning packings: 0.018 at
-# most, both ways; BENCHMARKS.md, as above).
+# centres within LEVEL diameters (physically based tuning packings: 0.013 at
+# most, both ways; BENCHMARKS.md, as above and "One search for the most
+# symmetric line").
 TURN = 0.2
 LEVEL = 0.03
 # Iterations of the nominal circle's fit (_x_by_nominal_circle), started where
@@ -151,7 +152,7 @@ NOMINAL_ITERATIONS = 2
 HELD_ROUNDS = 2  # re-centrings of an unheld group's template, each on the spheres the last one found
 SYMMETRY_ROUNDS = 3  # re-cuts of the mean look (_centre_of_symmetry): the first moves it most of the way
 SYMMETRY_SPAN = 0.2  # how far [d] from the template's middle the centre of symmetry may lie
-SYMMETRY_STEP_PX = 0.25
+SYMMETRY_STEP_PX = 0.25  # a re-cut moving the mean look's centre less than this ends the rounds
 # Each sphere of a group the fit does not hold (FOLLOWS), its template so
 # centred, is then moved up or down, within OWN_SYMMETRY_SPAN d, to where its
 # own look is most symmetric top to bottom
@@ -392,22 +393,26 @@ def _y_by_own_symmetry(smooth: dict[int, np.ndarray], found: np.ndarray, templat
     return out
 
 
-def _mirror_shift(image: np.ndarray, centres: np.ndarray, d: float, axis: int) -> np.ndarray:
+def _mirror_shift(image: np.ndarray, centres: np.ndarray, d: float, axis: int,
+                  span: float = OWN_SYMMETRY_SPAN, pooled: bool = False) -> np.ndarray:
     """For each of ``centres`` (m, 2) [px], how far along ``axis`` (0: x, 1: y) [px] from it, within
-    OWN_SYMMETRY_SPAN d, the patch of ``image`` about it is most symmetric: mirrored about the line
-    across that axis, the correlation over a disk of 0.55 d about the line's middle. The lines are
-    tried every half pixel, where mirroring moves whole pixels (no resampling), and the best
-    refined by a parabola through it and its neighbours."""
-    span = OWN_SYMMETRY_SPAN * d
+    ``span`` d, the patch of ``image`` about it is most symmetric: mirrored about the line across
+    that axis, the correlation over a disk of 0.55 d about the line's middle. The lines are tried
+    every half pixel, where mirroring moves whole pixels (no resampling), and the best refined by a
+    parabola through it and its neighbours. ``pooled``: one shift (shape (1,)) for the mean of the
+    patches instead."""
+    reach = span * d  # [px]
     radius = 0.55 * d
-    half = int(np.ceil(radius + span)) + 1
+    half = int(np.ceil(radius + reach)) + 1
     patches = cut_patches(image, centres, 2 * half + 1)
+    if pooled:
+        patches = patches.mean(axis=0, keepdims=True)
     if axis == 0:
         patches = patches.transpose(0, 2, 1)  # mirror rows in either case
-    steps = np.arange(-np.floor(2 * span), np.floor(2 * span) + 1) / 2
+    steps = np.arange(-np.floor(2 * reach), np.floor(2 * reach) + 1) / 2
     offsets = np.arange(2 * half + 1) - half
     along, across = np.meshgrid(offsets, offsets, indexing="ij")
-    score = np.empty((len(steps), len(centres)))
+    score = np.empty((len(steps), len(patches)))
     for k, step in enumerate(steps):
         rows, cols = np.nonzero((along - step) ** 2 + across ** 2 <= radius ** 2)
         a = patches[:, rows, cols]
@@ -417,7 +422,7 @@ def _mirror_shift(image: np.ndarray, centres: np.ndarray, d: float, axis: int) -
         score[k] = (a * b).sum(axis=1) / np.maximum((a * a).sum(axis=1), 1e-12)
     best = np.argmax(score, axis=0)
     inner = np.clip(best, 1, len(steps) - 2)
-    left, mid, right = (score[inner + k, np.arange(len(centres))] for k in (-1, 0, 1))
+    left, mid, right = (score[inner + k, np.arange(len(patches))] for k in (-1, 0, 1))
     curve = left - 2 * mid + right
     vertex = np.where(curve < 0, 0.5 * (left - right) / np.where(curve < 0, curve, -1.0), 0.0)
     refined = steps[inner] + 0.5 * np.clip(vertex, -0.5, 0.5)
@@ -477,28 +482,13 @@ def _follows(image: np.ndarray, spheres: np.ndarray, templates: Templates, group
 
 def _centre_of_symmetry(image: np.ndarray, centres: np.ndarray, templates: Templates, axis: int = 1) -> float:
     """How far below ``centres`` (m, 2) [px] the spheres' mean look in ``image`` is most symmetric top to
-    bottom [px]: the mean patch around them mirrored about each row within SYMMETRY_SPAN d, the
-    correlation over the sphere's disk (1.1 radii) about that row; re-cut about the best row
-    SYMMETRY_ROUNDS times (the mean patch of scattered centres is blurred; once re-cut it is less).
-    ``axis=0``: how far right of them it is most symmetric left to right."""
-    d = templates.d
-    size = 2 * templates.half + 1
-    middle = (size - 1) / 2
-    yy, xx = np.mgrid[0:size, 0:size].astype(np.float32)
-    along, across = (yy, xx) if axis == 1 else (xx, yy)
-    rows = np.arange(-SYMMETRY_SPAN * d, SYMMETRY_SPAN * d + 1e-9, SYMMETRY_STEP_PX)
+    bottom [px], within SYMMETRY_SPAN d (:func:`_mirror_shift` of the mean patch); re-cut about the
+    best line SYMMETRY_ROUNDS times (the mean patch of scattered centres is blurred; once re-cut it
+    is less). ``axis=0``: how far right of them it is most symmetric left to right."""
     total = 0.0
     for _ in range(SYMMETRY_ROUNDS):
-        mean = cut_patches(image, centres + np.eye(2)[axis] * total, size).mean(axis=0)
-        score = np.full(len(rows), -np.inf)
-        for i, row in enumerate(rows):
-            mirror = (2 * (middle + row) - along).astype(np.float32)
-            mirrored = cv2.remap(mean, *((xx, mirror) if axis == 1 else (mirror, yy)), cv2.INTER_LINEAR,
-                                 borderMode=cv2.BORDER_REPLICATE)
-            disk = (across - middle) ** 2 + (along - middle - row) ** 2 <= (0.55 * d) ** 2
-            a, b = mean[disk] - mean[disk].mean(), mirrored[disk] - mirrored[disk].mean()
-            score[i] = float((a * b).sum() / np.sqrt((a * a).sum() * (b * b).sum() + 1e-12))
-        step = float(rows[int(np.argmax(score))])
+        step = float(_mirror_shift(image, centres + np.eye(2)[axis] * total, templates.d, axis,
+                                   span=SYMMETRY_SPAN, pooled=True)[0])
         total += step
         if abs(step) < SYMMETRY_STEP_PX:
             break
