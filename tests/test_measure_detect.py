@@ -15,6 +15,7 @@ from granseg.measure.detect import (
     _centre_of_symmetry,
     _follows,
     _mirror_shift,
+    _one_per_place,
     _packing,
     _smooth,
     _turn,
@@ -482,6 +483,36 @@ def test_each_sphere_is_found_where_its_own_look_is_symmetric(shift):
     np.testing.assert_array_equal(moved[:, [0, 2, 3, 4]], found[:, [0, 2, 3, 4]])
     assert np.median(np.abs(moved[:, 1] - centres[inside, 1])) < 0.1
     np.testing.assert_array_equal(_y_by_own_symmetry(by_sign, found, templates), found)
+
+
+def test_where_glass_is_placed_by_its_template_the_sharper_rim_keeps_the_place():
+    """Of two candidates of opposite polarity closer than 0.7 d, the correlation over its group's
+    median decides; once a group is placed by its template (symmetric_y), the rim over its
+    group's median does: a glass match lying off-centre on a matte sphere correlates well for glass
+    but has a faint rim, and gives the place back to the matte sphere's candidate."""
+    d = 34.0
+    patch = np.zeros((5, 5), np.float32)
+    templates = Templates((patch, patch), np.zeros((2, 2)), np.full(2, d / 2), np.zeros((2, 3)),
+                          (patch, patch), d, np.array([1, -1]), rim_limits=np.zeros(2))
+    rng = np.random.default_rng(3)
+    # a row of spheres a diameter apart in each group, with typical correlation and rim
+    matte = np.column_stack([np.arange(6) * d, np.zeros(6), np.full(6, d / 2), rng.uniform(0.88, 0.92, 6),
+                             np.zeros(6), np.zeros(6)])
+    glass = np.column_stack([np.arange(6) * d, np.full(6, 3 * d), np.full(6, d / 2), rng.uniform(0.58, 0.62, 6),
+                             np.ones(6), np.zeros(6)])
+    rims = np.concatenate([rng.uniform(2.0, 2.2, 6), rng.uniform(0.9, 1.1, 6)])
+    # a matte sphere at (10 d, 0) and a glass match 0.4 d off it: the glass correlates better for
+    # its group (0.75 / 0.6 against 0.9 / 0.9), the matte candidate's rim is the sharper for its own
+    conflict = np.array([[10 * d, 0, d / 2, 0.90, 0, 0], [10.4 * d, 0, d / 2, 0.75, 1, 0]])
+    found = np.vstack([matte, glass, conflict])
+    rim = np.concatenate([rims, [2.1, 0.2]])
+    by_correlation = _one_per_place(found, rim, templates)
+    by_rim = _one_per_place(found, rim, replace(templates, symmetric_y=np.array([False, True])))
+    assert len(by_correlation) == len(by_rim) == 13
+    assert [10.4 * d, 1] in by_correlation[:, [0, 4]].tolist()
+    assert [10 * d, 0] in by_rim[:, [0, 4]].tolist()
+    one_polarity = replace(templates, signs=np.array([1, 1]), symmetric_y=np.array([False, True]))
+    np.testing.assert_array_equal(_one_per_place(found, rim, one_polarity), found)
 
 
 def test_a_recentred_template_moves_its_matches():
