@@ -12,7 +12,10 @@ material's own, each material learned from the other's matches: the worse
 band's median nearest-neighbour distance [d]), whether a borrowed set was
 kept, and otherwise the two bands' spheres per row with one polarity and with
 each material's own (the richer band's over the other's) and which of those
-two the criterion prefers (:func:`granseg.measure.detect.learn_templates`).
+two the criterion prefers (:func:`granseg.measure.detect.learn_templates`). A
+band whose two polarities' contrasts tie is searched in both
+(``band_polarities_tried``); then each material's own is one set per pair
+of differing band polarities.
 ``--choice one`` / ``each`` keeps one polarity / each material's own wherever
 the bands' polarities differ, whatever the criteria say: the maps of the
 choice not taken; ``--choice no-borrowed`` never keeps a borrowed set (the
@@ -52,7 +55,8 @@ def _spy_on_learning(choice: str = "auto") -> list[dict]:
     imbalance of one polarity / each its own; with ``choice`` "one" or "each" force that set to be
     kept where the bands' polarities differ, with "no-borrowed" never keep a borrowed set."""
     seen: list[dict] = []
-    polarity, imbalance, packing = detect._polarity, detect._band_imbalance, detect._packing
+    polarity, polarities = detect._polarity, detect._band_polarities
+    imbalance, packing = detect._band_imbalance, detect._packing
     if choice != "auto":
         detect.PACKED_NN = np.inf  # a borrowed set never wins
 
@@ -60,6 +64,11 @@ def _spy_on_learning(choice: str = "auto") -> list[dict]:
         sign, seeds = polarity(image, candidates, d)
         seen.append({"polarity": sign})
         return sign, seeds
+
+    def band_polarities(image, candidates, d):
+        options = polarities(image, candidates, d)
+        seen.append({"polarity": options[0][0] if options else 1, "tried": [s for s, _ in options]})
+        return options
 
     def band_packing(spheres, d):
         value = packing(spheres, d)
@@ -71,10 +80,11 @@ def _spy_on_learning(choice: str = "auto") -> list[dict]:
         seen.append({"ratio": float(np.exp(value))})
         if choice in ("auto", "no-borrowed"):
             return value
-        is_split = sum("ratio" in e for e in seen) == 2  # one polarity's set comes first
+        is_split = sum("ratio" in e for e in seen) >= 2  # one polarity's set comes first
         return float(is_split) if choice == "one" else float(not is_split)
 
-    detect._polarity, detect._band_imbalance, detect._packing = band_polarity, band_imbalance, band_packing
+    detect._polarity, detect._band_polarities = band_polarity, band_polarities
+    detect._band_imbalance, detect._packing = band_imbalance, band_packing
     return seen
 
 
@@ -105,17 +115,31 @@ def measure(folder: Path, look: str, seen: list[dict]) -> dict:
            "quality_ok": bool(a.quality.ok), "failed_checks": [c.name for c in a.quality.failed],
            **_blur_figures(a)}
     # the whole frame's polarity comes first, then one per band (learn_templates' order)
-    bands = [e["polarity"] for e in seen if "polarity" in e][1:3]
+    bands = [e for e in seen if "polarity" in e][1:3]
     ratios = [e["ratio"] for e in seen if "ratio" in e]
     packing = [e["packing"] for e in seen if "packing" in e]
-    out["band_polarities"] = bands
+    out["band_polarities"] = [e["polarity"] for e in bands]
+    tried = [e.get("tried", []) for e in bands]
+    if any(len(t) > 1 for t in tried):  # a band whose two contrasts tie: both its polarities were tried
+        out["band_polarities_tried"] = tried
+    # one set of each its own polarity per pair of differing band polarities
+    n_each = sum(a != b for a in tried[0] for b in tried[1]) if len(tried) == 2 else 0
     if packing:  # one polarity, each its own, then the borrowed sets (band 0's material, band 1's)
-        out["packing"] = dict(zip(["one", "each_its_own", "borrowed"], packing[:2] + [packing[2:]], strict=True))
+        each = packing[1:1 + n_each]
+        out["packing"] = {"one": packing[0], "each_its_own": each[0] if n_each == 1 else each,
+                          "borrowed": packing[1 + n_each:]}
         best = int(np.argmax(packing))
-        out["borrowed_kept"] = bool(best >= 2 and packing[best] >= detect.PACKED_NN)
-    if len(ratios) == 2:
-        out["spheres_per_row_ratio"] = {"one": ratios[0], "each_its_own": ratios[1]}
-        out["criterion_prefers"] = "each its own" if ratios[1] < ratios[0] else "one"
+        out["borrowed_kept"] = bool(best > n_each and packing[best] >= detect.PACKED_NN)
+    if len(ratios) >= 2:
+        out["spheres_per_row_ratio"] = {"one": ratios[0], "each_its_own": ratios[1] if n_each == 1 else ratios[1:]}
+        # as _choose_templates: a set resting on a tie's weaker polarity must also pack better than one's
+        pairs = [(a, b) for a in tried[0] for b in tried[1] if a != b]
+        score = [abs(np.log(r)) for r in ratios]
+        for i, (a, b) in enumerate(pairs, start=1):
+            if (a, b) != (tried[0][0], tried[1][0]) and packing[i] <= packing[0]:
+                score[i] = np.inf
+        best = int(np.argmin(score))
+        out["criterion_prefers"] = "one" if best == 0 else "each its own" + (f" #{best}" if n_each > 1 else "")
     return out
 
 
@@ -151,12 +175,14 @@ def main() -> None:
             line += f"  | bands {r['band_polarities']}"
             if "packing" in r:
                 pk = r["packing"]
-                line += (f", packing {pk['one']:.3f} / {pk['each_its_own']:.3f} / "
+                each = np.atleast_1d(pk["each_its_own"])
+                line += (f", packing {pk['one']:.3f} / {' '.join(f'{v:.3f}' for v in each)} / "
                          f"{' '.join(f'{v:.3f}' for v in pk['borrowed'])}, borrowed "
                          f"{'kept' if r['borrowed_kept'] else 'not kept'}")
             if "criterion_prefers" in r:
                 ratio = r["spheres_per_row_ratio"]
-                line += (f", spheres per row {ratio['one']:.3f} / {ratio['each_its_own']:.3f}, the criterion "
+                each = np.atleast_1d(ratio["each_its_own"])
+                line += (f", spheres per row {ratio['one']:.3f} / {' '.join(f'{v:.3f}' for v in each)}, the criterion "
                          f"prefers: {r['criterion_prefers']}")
         print(line, flush=True)
     if args.json is not None:

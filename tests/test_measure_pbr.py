@@ -24,7 +24,7 @@ from scipy.spatial import cKDTree
 from granseg.cli import main
 from granseg.errors import QualityWarning
 from granseg.maps import load_map
-from granseg.measure import analyze
+from granseg.measure import analyze, detect
 from granseg.measure.experiment import load_experiment
 from granseg.measure.pipeline import _FrameWorker
 from granseg.measure.quality import Quality
@@ -108,6 +108,42 @@ def test_mirror_steel_is_learned_from_the_matte_spheres(look):
     dist, _ = cKDTree(np.column_stack([first.x, first.y])).query(steel[:, :2])
     d = exp.particle_diameter_px
     assert np.mean(dist < 0.1 * d) >= 0.9, np.mean(dist < 0.1 * d)
+
+
+@pytest.mark.parametrize("tie", [detect.POLARITY_TIE, 0.0])
+def test_a_tied_polarity_is_searched_both_ways(monkeypatch, tie):
+    """Transparent glass's two polarities nearly tie. Tipped the wrong way (as on a packing at seed
+    offset 300), glass beside bright ceramic was searched bright with the ceramic, and its first
+    frame's glass was found within 0.3 d 9 times of 67. A band whose contrasts tie is searched in both polarities, and
+    the set of each material's own finds the glass; without the tie (``tie`` 0), it does not."""
+    contrasts = detect._contrasts
+
+    def tipped(image, candidates, d):  # glass's near tie tipped to bright by 0.6 grey levels, as at offset 300
+        ranked = contrasts(image, candidates, d)
+        if len(ranked) == 2 and ranked[0][0] - ranked[1][0] < 0.1 * (abs(ranked[0][0]) + abs(ranked[1][0])):
+            mean = 0.5 * (ranked[0][0] + ranked[1][0])
+            (_, sign, seeds), (_, other, others) = ranked
+            ranked = [(mean + 0.3, other, others), (mean - 0.3, sign, seeds)]
+        return ranked
+
+    monkeypatch.setattr(detect, "_contrasts", tipped)
+    monkeypatch.setattr(detect, "POLARITY_TIE", tie)
+    truth = load_fixture(PBR / "ceramic-glass")
+    exp = load_experiment(PBR / "ceramic-glass" / "experiment.json")
+    image = cv2.imread(str(PBR / "ceramic-glass" / "frame_0000.jpg"))
+    worker = _FrameWorker(exp, (image.shape[1], image.shape[0]))
+    worker.learn(image)
+    first = worker("frame_0000.jpg", image)[0]
+    rows = truth.particles[0]
+    glass = rows[(rows[:, 4] > 0) & (rows[:, 3] == 0)]  # the light class, below
+    dist, _ = cKDTree(np.column_stack([first.x, first.y])).query(glass[:, :2])
+    recall = float(np.mean(dist < 0.3 * exp.particle_diameter_px))
+    if tie > 0:
+        assert worker.templates.signs.tolist() == [1, -1]
+        assert recall >= 0.9, recall  # as untipped: 0.925
+    else:
+        assert worker.templates.signs.tolist() == [1, 1]
+        assert recall < 0.5, recall
 
 
 @pytest.mark.parametrize("look", ["glass-pp", "glass-pom"])

@@ -108,6 +108,19 @@ INSIDE_RADII = 0.5
 # 0.82-0.93 d. Set on the tuning packings, where the borrowed steel sets
 # packed at 0.974-0.975 d and the best glass set at 0.92 d.
 PACKED_NN = 0.95
+# A band's two polarities tie (_ties) where their contrasts (_contrasts)
+# differ by less than this share of their sizes' sum; then both are tried
+# (_choose_templates). Transparent glass nearly ties: 0.01-0.25 over 19
+# physically based glass bands, bright the stronger by 0.01 on one (ceramic-glass
+# at seed offset 300), where glass searched bright gave recall 0.70 and
+# counts 17 % off. Every other band is 0.09 or more from a tie: the matte
+# and steel bands of the physically based looks 0.15 or more, those of the
+# 2-D renderer 0.09 (steel under JPEG) or more, over 194 bands of every
+# scene (seeds 7-8 or 7-9) and of five POM and steel scenes under each
+# combined change (seed 7). Relative, as a dimmer exposure shrinks both
+# contrasts: 2-D POM dimmed to 0.6 under MPEG-4 is 4.9 grey levels from a
+# tie, but 0.18 of its contrasts' sum.
+POLARITY_TIE = 0.05
 MIN_CONFIRMED = 30  # confirmed spheres a group needs for rim limits of its own (median and MAD of fewer are noisy)
 # Rounds of learning a group's outline bias (_ray_bias): the first refit
 # shows what the first estimate left. Two and three rounds gave the same
@@ -194,7 +207,30 @@ def _smooth(image: np.ndarray, d: float, signs=(1,)) -> dict[int, np.ndarray]:
 
 
 def _polarity(image: np.ndarray, candidates: dict[int, np.ndarray], d: float) -> tuple[int, np.ndarray]:
-    """Whether the spheres are brighter (+1) or darker (-1) than their surroundings, and their seeds.
+    """Whether the spheres are brighter (+1) or darker (-1) than their surroundings, and their seeds
+    (+1 and no seeds if neither polarity confirms 3): the polarity of the larger contrast
+    (:func:`_contrasts`)."""
+    ranked = _contrasts(image, candidates, d)
+    return (ranked[0][1], ranked[0][2]) if ranked else (1, np.zeros((0, 4)))
+
+
+def _band_polarities(image: np.ndarray, candidates: dict[int, np.ndarray], d: float) -> list[tuple[int, np.ndarray]]:
+    """A band's polarities (sign, seeds), best first: the polarity of the larger contrast
+    (:func:`_contrasts`), and the other too if the two tie (:func:`_ties`; none if neither
+    polarity confirms 3 seeds)."""
+    ranked = _contrasts(image, candidates, d)
+    return [(sign, seeds) for contrast, sign, seeds in ranked[:1]] + \
+        [(sign, seeds) for contrast, sign, seeds in ranked[1:] if _ties(ranked[0][0], contrast)]
+
+
+def _ties(stronger: float, weaker: float) -> bool:
+    """Whether two polarities' contrasts (grey levels) differ by less than POLARITY_TIE of their
+    sizes' sum (relative, so that a dimmer exposure, which shrinks both, does not make a tie)."""
+    return stronger - weaker < POLARITY_TIE * (abs(stronger) + abs(weaker))
+
+
+def _contrasts(image: np.ndarray, candidates: dict[int, np.ndarray], d: float) -> list[tuple[float, int, np.ndarray]]:
+    """Per polarity confirming at least 3 seeds, (contrast, sign, seeds), the largest contrast first.
 
     The outline fit looks for an outward drop: on the image of either sign
     it confirms circles, centred on the spheres in both cases (on the wrong
@@ -206,7 +242,9 @@ def _polarity(image: np.ndarray, candidates: dict[int, np.ndarray], d: float) ->
     annulus grey levels for sign +1 / -1 seeds: black beads on a backlight
     -3 / -98; the six synthetic scenes +35 to +82 / +2 to +37). So the sign
     s with the largest s x contrast wins: no threshold, and a margin of at
-    least 85 grey levels on all seven.
+    least 85 grey levels on all seven. Transparent glass is the exception
+    (dark inside, its rim bright: both signs' seeds find a sphere's look),
+    where the two contrasts nearly tie (POLARITY_TIE).
     """
     blur = _smooth(image, d)[1]  # inverted below for sign -1, as _smooth would
     half = int(np.ceil(0.75 * d))
@@ -214,7 +252,7 @@ def _polarity(image: np.ndarray, candidates: dict[int, np.ndarray], d: float) ->
     yy, xx = np.mgrid[0:size, 0:size] - half
     rho = np.hypot(xx, yy) / (0.5 * d)
     disk, annulus = rho <= 0.8, (rho >= 1.0) & (rho <= 1.5)
-    best = (-np.inf, 1, np.zeros((0, 4)))
+    ranked = []
     for sign in (1, -1):
         if len(candidates[sign]) == 0:
             continue
@@ -223,10 +261,8 @@ def _polarity(image: np.ndarray, candidates: dict[int, np.ndarray], d: float) ->
             continue
         mean = np.mean([cv2.getRectSubPix(blur, (size, size), (float(x), float(y))) for x, y in seeds[:, :2]],
                        axis=0)
-        contrast = sign * float(mean[disk].mean() - mean[annulus].mean())
-        if contrast > best[0]:
-            best = (contrast, sign, seeds)
-    return best[1], best[2]
+        ranked.append((sign * float(mean[disk].mean() - mean[annulus].mean()), sign, seeds))
+    return sorted(ranked, key=lambda r: -r[0])
 
 
 def learn_templates(image: np.ndarray, particle_diameter_px: float,
@@ -525,6 +561,14 @@ def _choose_templates(image: np.ndarray, d: float,
     and 0.031 -> 0.027). The glass looks' borrowed sets pack no better than
     0.92 and are not kept (BENCHMARKS.md).
 
+    A band whose two polarities' contrasts tie (POLARITY_TIE: transparent
+    glass) offers both, and each pair of differing band polarities gives a
+    set of each material's own; one that rests on the tie's weaker polarity
+    is kept only if its spheres also pack better than one polarity's
+    (glass beside ceramic, both searched bright where glass's tie tipped:
+    recall 0.70 and counts 17 % off; glass searched dark as well, recall
+    0.99, counts 4.2 %).
+
     The final templates are cut around the confirmed spheres as
     :func:`detect_particles` places them, so that a template's middle is, on
     average, where the outline fit puts a sphere and a match starts the fit
@@ -540,24 +584,39 @@ def _choose_templates(image: np.ndarray, d: float,
         # shows (3 gaps between smeared spheres, C-PP-90 with c0 = 0.93, where the
         # light band was 7 px of the plate's edge) is no material's polarity
         return one
-    per_band = [_polarity(image, _in_rows(candidates, rows), d) for rows in bands]
-    if min(len(seeds) for _, seeds in per_band) < 3 or per_band[0][0] == per_band[1][0]:
+    options = [_band_polarities(image, _in_rows(candidates, rows), d) for rows in bands]
+    # each band's polarity, the two differing; a band whose two contrasts tie offers both
+    pairs = [[a, b] for a in options[0] for b in options[1] if a[0] != b[0]]
+    if not pairs:
         return one
-    own = [_templates_from_seeds(image, seeds, d, sign, one_group=True) for sign, seeds in per_band]
-    split = _with_rims(image, join_templates(own), np.concatenate([seeds for _, seeds in per_band]))
-    if one is None:
-        return split
-    sets = [one, split] + [b for k in (0, 1) if (b := _borrowed(image, own, per_band, bands, k)) is not None]
+    guessed = [a is not options[0][0] or b is not options[1][0] for a, b in pairs]
+    splits, borrowed = [], []
+    for per_band, guess in zip(pairs, guessed, strict=True):
+        own = [_templates_from_seeds(image, seeds, d, sign, one_group=True) for sign, seeds in per_band]
+        splits.append(_with_rims(image, join_templates(own), np.concatenate([seeds for _, seeds in per_band])))
+        if not guess:  # a material is learned from the other's matches only where both polarities are clear
+            borrowed += [b for k in (0, 1) if (b := _borrowed(image, own, per_band, bands, k)) is not None]
+    if one is None:  # too few seeds in the whole frame: the bands' own polarities, if they differ
+        return next((split for split, guess in zip(splits, guessed, strict=True) if not guess), None)
+    sets = [one, *splits, *borrowed]
     spheres = [_band_spheres(image, t, bands) for t in sets]
     packing = [_packing(s, d) for s in spheres]
     best = int(np.argmax(packing))
-    if best >= 2 and packing[best] >= PACKED_NN:
+    if best > len(splits) and packing[best] >= PACKED_NN:
         return sets[best]
     # both bands are packed beds of spheres of one size: templates that find
     # each band's spheres find as many per row in both, while a polarity that
     # does not suit a material finds its gaps and misses spheres
-    imbalance = [_band_imbalance(s, bands) for s in spheres[:2]]
-    return split if imbalance[1] < imbalance[0] else one
+    imbalance = [_band_imbalance(s, bands) for s in spheres[:len(splits) + 1]]
+    # a set resting on a tie's weaker polarity must also find spheres that pack
+    # better than one polarity's: with a wider tie (5 grey levels), steel over
+    # glass (both dark, glass then also searched bright) balanced its bands
+    # better so, but packed worse (0.87 / 0.89 against 0.90 / 0.92, tuning and
+    # held-out packings) and lost a tenth of the spheres
+    for i, guess in enumerate(guessed, start=1):
+        if guess and packing[i] <= packing[0]:
+            imbalance[i] = np.inf
+    return sets[int(np.argmin(imbalance))]
 
 
 def _borrowed(image: np.ndarray, own: list[Templates], per_band: list[tuple[int, np.ndarray]], bands,
