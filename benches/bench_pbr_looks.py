@@ -132,13 +132,9 @@ def measure(folder: Path, look: str, seen: list[dict]) -> dict:
         out["borrowed_kept"] = bool(best > n_each and packing[best] >= detect.PACKED_NN)
     if len(ratios) >= 2:
         out["spheres_per_row_ratio"] = {"one": ratios[0], "each_its_own": ratios[1] if n_each == 1 else ratios[1:]}
-        # as _choose_templates: a set resting on a tie's weaker polarity must also pack better than one's
         pairs = [(a, b) for a in tried[0] for b in tried[1] if a != b]
-        score = [abs(np.log(r)) for r in ratios]
-        for i, (a, b) in enumerate(pairs, start=1):
-            if (a, b) != (tried[0][0], tried[1][0]) and packing[i] <= packing[0]:
-                score[i] = np.inf
-        best = int(np.argmin(score))
+        guessed = [(a, b) != (tried[0][0], tried[1][0]) for a, b in pairs]
+        best = detect._kept([abs(np.log(r)) for r in ratios], packing[:len(ratios)], guessed)
         out["criterion_prefers"] = "one" if best == 0 else "each its own" + (f" #{best}" if n_each > 1 else "")
     return out
 

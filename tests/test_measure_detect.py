@@ -14,6 +14,7 @@ from granseg.measure.detect import (
     TURN,
     _centre_of_symmetry,
     _follows,
+    _kept,
     _mirror_shift,
     _one_per_place,
     _packing,
@@ -185,6 +186,29 @@ def test_a_band_thinner_than_a_diameter_learns_no_polarity():
     alone = learn_templates(image, d)
     assert templates.signs.tolist() == alone.signs.tolist() and len(set(templates.signs.tolist())) == 1
     assert all(np.array_equal(a, b) for a, b in zip(templates.patches, alone.patches, strict=True))
+
+
+def test_one_polarity_overrides_the_bands_own_only_if_it_balances_and_packs_better():
+    """The sets' figures as measured on physically based first frames (imbalance as |log| of the
+    spheres-per-row ratio; packing in diameters): set 0 is one polarity, 1 each material's own."""
+    log = np.log
+    # glass beside ceramic, seed offset 600: glass bright balances better (it finds glass's gaps) but packs worse
+    assert _kept([log(1.070), log(1.138)], [0.856, 0.892], [False]) == 1
+    # glass beside POM (tuning packing): each its own balances better, packs a little worse
+    assert _kept([log(1.488), log(1.030)], [0.881, 0.876], [False]) == 1
+    # mirror steel over POM before borrowed templates: one polarity better both ways
+    assert _kept([log(1.04), log(1.08)], [0.961, 0.867], [False]) == 0
+
+
+def test_a_set_on_a_ties_weaker_polarity_must_balance_the_bands_clearly_better():
+    """Glass tipped bright beside ceramic (seed offset 300): glass dark, the tie's weaker polarity,
+    balances the bands better by 0.10 and is kept; glass bright beside dark steel, tried where a
+    wider tie made it a candidate, balanced them better by only 0.019 and is not."""
+    log = np.log
+    assert _kept([log(1.169), log(1.056)], [0.858, 0.921], [True]) == 1
+    assert _kept([log(1.068), log(1.048)], [0.899, 0.871], [True]) == 0
+    # beside a set on clear polarities, a guess must beat that one too
+    assert _kept([log(1.775), log(1.101), log(1.063)], [0.876, 0.85, 0.902], [False, True]) == 1
 
 
 def test_packing_is_the_worse_bands_nearest_neighbour_distance():

@@ -121,6 +121,19 @@ PACKED_NN = 0.95
 # contrasts: 2-D POM dimmed to 0.6 under MPEG-4 is 4.9 grey levels from a
 # tie, but 0.18 of its contrasts' sum.
 POLARITY_TIE = 0.05
+# How much better [|log| of the spheres-per-row ratio] a set of templates
+# resting on a tie's weaker polarity must balance the bands than one on the
+# stronger polarities (_choose_templates). Set on glass's ties made to tip
+# (a throwaway patch: the first frame's glass band's two contrasts swapped
+# to a tie, on 18 packings of ceramic-glass, glass-pom and glass-pp): the
+# right set (glass dark) balanced the bands better than the one-polarity
+# set by 0.056-0.48 on 16, by 0.001 and 0.022 on two, where the tip then
+# stands, as it did before ties were tried. Glass searched bright beside
+# dark steel, wrongly, balanced them better by 0.015-0.019 (a tie of 5 grey
+# levels made it a candidate). Requiring the spheres to pack better
+# instead would have kept the right set on 9 of the 16 tips it was tried on
+# (benches/bench_polarity_ties.py).
+TIE_BALANCE = 0.05
 MIN_CONFIRMED = 30  # confirmed spheres a group needs for rim limits of its own (median and MAD of fewer are noisy)
 # Rounds of learning a group's outline bias (_ray_bias): the first refit
 # shows what the first estimate left. Two and three rounds gave the same
@@ -544,9 +557,9 @@ def _choose_templates(image: np.ndarray, d: float,
     spheres the other band's template finds there (:func:`_borrowed`). A
     borrowed set is kept if the spheres it finds in both bands pack like a
     bed, and better than those of the other sets (:func:`_packing`, at least
-    PACKED_NN); otherwise the set of each material's own polarity is kept if
-    with it the two bands' spheres per row come out closer than with one
-    polarity (:func:`_band_imbalance`). Transparent glass (dark
+    PACKED_NN); otherwise the set of each material's own polarity is kept
+    unless with one polarity the two bands' spheres per row come out closer
+    (:func:`_band_imbalance`) and pack closer too. Transparent glass (dark
     inside, its rim bright) above matte POM (bright on dark gaps) has no
     polarity that suits both: with one, the glass of the first frame was
     found 25 times of 64, with its own 61. Measured on the physically based
@@ -564,7 +577,7 @@ def _choose_templates(image: np.ndarray, d: float,
     A band whose two polarities' contrasts tie (POLARITY_TIE: transparent
     glass) offers both, and each pair of differing band polarities gives a
     set of each material's own; one that rests on the tie's weaker polarity
-    is kept only if its spheres also pack better than one polarity's
+    is kept only if it balances the bands better by TIE_BALANCE
     (glass beside ceramic, both searched bright where glass's tie tipped:
     recall 0.70 and counts 17 % off; glass searched dark as well, recall
     0.99, counts 4.2 %).
@@ -604,19 +617,34 @@ def _choose_templates(image: np.ndarray, d: float,
     best = int(np.argmax(packing))
     if best > len(splits) and packing[best] >= PACKED_NN:
         return sets[best]
-    # both bands are packed beds of spheres of one size: templates that find
-    # each band's spheres find as many per row in both, while a polarity that
-    # does not suit a material finds its gaps and misses spheres
     imbalance = [_band_imbalance(s, bands) for s in spheres[:len(splits) + 1]]
-    # a set resting on a tie's weaker polarity must also find spheres that pack
-    # better than one polarity's: with a wider tie (5 grey levels), steel over
-    # glass (both dark, glass then also searched bright) balanced its bands
-    # better so, but packed worse (0.87 / 0.89 against 0.90 / 0.92, tuning and
-    # held-out packings) and lost a tenth of the spheres
-    for i, guess in enumerate(guessed, start=1):
-        if guess and packing[i] <= packing[0]:
-            imbalance[i] = np.inf
-    return sets[int(np.argmin(imbalance))]
+    return sets[_kept(imbalance, packing[:len(splits) + 1], guessed)]
+
+
+def _kept(imbalance: list[float], packing: list[float], guessed: list[bool]) -> int:
+    """Which set is kept, 0 (one polarity) or i >= 1 (each material's own, ``guessed[i - 1]`` if it
+    rests on a tie's weaker polarity), by the bands' imbalance (:func:`_band_imbalance`) and the
+    spheres' packing (:func:`_packing`), each given per set.
+
+    Both bands are packed beds of spheres of one size: templates that find
+    each band's spheres find as many per row in both, while a polarity that
+    does not suit a material finds its gaps and misses spheres. The bands'
+    own polarities are what the frame shows, so one polarity for both
+    overrides them only if its spheres balance the bands better and pack
+    better too: glass searched bright beside ceramic can balance them by
+    finding glass's gaps (seed offset 600: 1.070 spheres per row against
+    1.138 for glass dark; glass recall 0.07), but packs worse (0.856 against
+    0.892). A set resting on a tie's weaker polarity must balance the bands
+    better by TIE_BALANCE than every set on the stronger polarities.
+    """
+    chosen = 0
+    clear = [i for i, guess in enumerate(guessed, start=1) if not guess]
+    for i in clear:
+        if not (imbalance[0] < imbalance[i] and packing[0] > packing[i]):
+            chosen = i
+    best_clear = min(imbalance[i] for i in [0, *clear])
+    guesses = [i for i, guess in enumerate(guessed, start=1) if guess and imbalance[i] + TIE_BALANCE < best_clear]
+    return min(guesses, key=imbalance.__getitem__) if guesses else chosen
 
 
 def _borrowed(image: np.ndarray, own: list[Templates], per_band: list[tuple[int, np.ndarray]], bands,
