@@ -96,7 +96,7 @@ def main() -> None:
     results = measure_all(args.dirs, args.looks)
     summary(results)
     if args.json:
-        save_json(args.json, {"command": "benches/bench_pbr_packings.py", "dirs": [str(d) for d in args.dirs],
+        save_json(args.json, {"command": " ".join(sys.argv), "dirs": [str(d) for d in args.dirs],
                               "results": results}, force=True)
 
 
