@@ -19,12 +19,15 @@ with a sphere found within 0.3 D; heavy / light), and, where sets were
 compared, each set's
 packing (``detect._packing``) and spheres-per-row ratio
 (``detect._band_imbalance``): one polarity first, then each material's own.
+With ``--maps``, every tipped look whose first frame then misses a class
+(recall below 0.9) is analysed with the same tip: the map's recall, counts
+and c_raw RMSD, and whether ``analyze``'s quality checks flag it.
 
 ::
 
     PYTHONPATH=python python benches/bench_polarity_ties.py --dirs /tmp/pbr-tune /tmp/pbr-hold tests/fixtures/pbr \
-        /tmp/pbr-300 /tmp/pbr-400 /tmp/pbr-500 --looks ceramic-glass glass-pom glass-pp steel-glass \
-        --json benches/results/polarity_ties.json
+        /tmp/pbr-300 /tmp/pbr-400 /tmp/pbr-500 /tmp/pbr-600 /tmp/pbr-700 /tmp/pbr-800 /tmp/pbr-900 \
+        /tmp/pbr-sg500 /tmp/pbr-sg600 --maps --json benches/results/polarity_ties.json
 
 (the folders from ``python -m granseg.synth.pbr fixtures FOLDER --looks ... --seed-offset N --no-verify``).
 """
@@ -34,6 +37,8 @@ from __future__ import annotations
 import argparse
 import sys
 import warnings
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import cv2
@@ -46,7 +51,11 @@ from granseg.measure.experiment import load_experiment
 from granseg.measure.pipeline import _FrameWorker
 from granseg.synth.pbr import load_fixture
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from bench_pbr_looks import measure  # noqa: E402
+
 NEAR_TIE = 0.3  # a band this close to a tie (relative gap) may be made to tip
+MISSED = 0.9  # a first frame finding less of a class than this (recall) went wrong: --maps analyses it
 
 
 def _relative_gap(ranked: list) -> float:
@@ -63,8 +72,10 @@ def _tip(ranked: list) -> list:
     return [(mean + 0.005 * abs(mean), other, others), (mean - 0.005 * abs(mean), sign, seeds)]
 
 
-def learn(look: Path, tip_band: int | None) -> dict:
-    """Learn the look's first frame (band ``tip_band`` tipped, if given); what was seen and kept."""
+@contextmanager
+def _patched(tip_band: int | None) -> Iterator[dict]:
+    """While inside, the detector's learning records each band's relative gap, each set's packing and
+    spheres-per-row ratio (yielded), with band ``tip_band``'s two contrasts tipped, if given."""
     contrasts, packing, imbalance = detect._contrasts, detect._packing, detect._band_imbalance
     seen = {"gaps": [], "packing": [], "ratio": []}
 
@@ -84,16 +95,21 @@ def learn(look: Path, tip_band: int | None) -> dict:
 
     detect._contrasts, detect._packing, detect._band_imbalance = spy_contrasts, spy_packing, spy_imbalance
     try:
-        truth = load_fixture(look)
-        exp = load_experiment(look / "experiment.json")
-        image = cv2.imread(str(sorted(look.glob("frame_0000.*"))[0]))
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            worker = _FrameWorker(exp, (image.shape[1], image.shape[0]))
-            worker.learn(image)
-            first = worker("frame_0000", image)[0]
+        yield seen
     finally:
         detect._contrasts, detect._packing, detect._band_imbalance = contrasts, packing, imbalance
+
+
+def learn(look: Path, tip_band: int | None) -> dict:
+    """Learn the look's first frame (band ``tip_band`` tipped, if given); what was seen and kept."""
+    truth = load_fixture(look)
+    exp = load_experiment(look / "experiment.json")
+    image = cv2.imread(str(sorted(look.glob("frame_0000.*"))[0]))
+    with _patched(tip_band) as seen, warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        worker = _FrameWorker(exp, (image.shape[1], image.shape[0]))
+        worker.learn(image)
+        first = worker("frame_0000", image)[0]
     rows = truth.particles[0]
     found = np.column_stack([first.x, first.y])
     recall = []
@@ -105,10 +121,21 @@ def learn(look: Path, tip_band: int | None) -> dict:
             "packing": seen["packing"], "ratio": seen["ratio"]}
 
 
+def the_map(look: Path, tip_band: int | None) -> dict:
+    """The map ``analyze`` makes of the look (band ``tip_band`` tipped, if given): window counts and
+    c_raw RMSD against the truth, and its quality verdict (``bench_pbr_looks.measure``)."""
+    with _patched(tip_band):
+        r = measure(look.parent, look.name, [])
+    return {k: r[k] for k in ("recall", "rmsd", "frame_layer_count_error", "quality_ok", "failed_checks")}
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--dirs", type=Path, nargs="+", required=True, help="folders of rendered looks")
     ap.add_argument("--looks", nargs="+", default=["ceramic-glass", "glass-pom", "glass-pp", "steel-glass"])
+    ap.add_argument("--maps", action="store_true",
+                    help="also analyse every tipped look whose first frame missed a class (recall < 0.9): "
+                         "the map's figures and whether its quality checks flag it")
     ap.add_argument("--json", type=Path, default=None, help="also write the figures here")
     args = ap.parse_args()
     results = {}
@@ -129,6 +156,11 @@ def main() -> None:
                       f"{r['signs']} recall {r['recall'][0]:.2f} / {r['recall'][1]:.2f}  packing "
                       f"{' '.join(f'{p:.3f}' for p in r['packing'])}  spheres per row "
                       f"{' '.join(f'{x:.3f}' for x in r['ratio'])}", flush=True)
+            if args.maps and tipped is not None and min(tipped["recall"]) < MISSED:
+                m = results[str(look)]["tipped_map"] = the_map(look, nearer)
+                print(f"{str(look):34s} tipped map: recall {m['recall']:.3f}, c_raw RMSD {m['rmsd']:.3f}, counts "
+                      f"{100 * m['frame_layer_count_error']:.1f} %, "
+                      f"{'ok' if m['quality_ok'] else 'flagged: ' + ', '.join(m['failed_checks'])}", flush=True)
     if args.json is not None:
         save_json(args.json, {"command": " ".join(sys.argv), "polarity_tie": detect.POLARITY_TIE,
                               "tie_balance": detect.TIE_BALANCE, "results": results}, force=True)

@@ -114,8 +114,9 @@ def test_mirror_steel_is_learned_from_the_matte_spheres(look):
 def test_a_tied_polarity_is_searched_both_ways(monkeypatch, tie):
     """Transparent glass's two polarities nearly tie. Tipped the wrong way (as on a packing at seed
     offset 300), glass beside bright ceramic was searched bright with the ceramic, and its first
-    frame's glass was found within 0.3 d 9 times of 67. A band whose contrasts tie is searched in both polarities, and
-    the set of each material's own finds the glass; without the tie (``tie`` 0), it does not."""
+    frame's glass was found within 0.3 d 9 times of 67. A band whose contrasts tie is searched in
+    both polarities, and the set of each material's own finds the glass; without the tie (``tie``
+    0), it does not."""
     contrasts = detect._contrasts
 
     def tipped(image, candidates, d):  # glass's near tie tipped to bright by 0.6 grey levels, as at offset 300

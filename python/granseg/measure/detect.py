@@ -110,29 +110,29 @@ INSIDE_RADII = 0.5
 PACKED_NN = 0.95
 # A band's two polarities tie (_ties) where their contrasts (_contrasts)
 # differ by less than this share of their sizes' sum; then both are tried
-# (_choose_templates). Transparent glass nearly ties: 0.01-0.25 over 19
-# physically based glass bands, bright the stronger by 0.01 on one (ceramic-glass
-# at seed offset 300), where glass searched bright gave recall 0.70 and
-# counts 17 % off. Every other band is 0.09 or more from a tie: the matte
-# and steel bands of the physically based looks 0.15 or more, those of the
-# 2-D renderer 0.09 (steel under JPEG) or more, over 194 bands of every
-# scene (seeds 7-8 or 7-9) and of five POM and steel scenes under each
-# combined change (seed 7). Relative, as a dimmer exposure shrinks both
-# contrasts: 2-D POM dimmed to 0.6 under MPEG-4 is 4.9 grey levels from a
-# tie, but 0.18 of its contrasts' sum.
+# (_choose_templates). Transparent glass nearly ties: 0.01-0.25 over 31
+# physically based glass bands (benches/bench_polarity_ties.py), within 0.05
+# on three, bright the stronger by 0.01 on one (ceramic-glass at seed offset
+# 300), where glass searched bright gave recall 0.70 and counts 17 % off.
+# Every other band is 0.09 or more from a tie: the matte and steel bands of
+# the physically based looks 0.15 or more, those of the 2-D renderer 0.09
+# (steel under JPEG) or more, over 194 bands of every scene (seeds 7-8 or
+# 7-9) and of five POM and steel scenes under each combined change (seed 7).
+# Relative, as a dimmer exposure shrinks both contrasts: 2-D POM dimmed to
+# 0.6 under MPEG-4 is 4.9 grey levels from a tie, but 0.18 of its contrasts'
+# sum.
 POLARITY_TIE = 0.05
 # How much better [|log| of the spheres-per-row ratio] a set of templates
 # resting on a tie's weaker polarity must balance the bands than one on the
 # stronger polarities (_choose_templates). Set on glass's ties made to tip
-# (a throwaway patch: the first frame's glass band's two contrasts swapped
-# to a tie, on 18 packings of ceramic-glass, glass-pom and glass-pp): the
-# right set (glass dark) balanced the bands better than the one-polarity
-# set by 0.056-0.48 on 16, by 0.001 and 0.022 on two, where the tip then
-# stands, as it did before ties were tried. Glass searched bright beside
-# dark steel, wrongly, balanced them better by 0.015-0.019 (a tie of 5 grey
-# levels made it a candidate). Requiring the spheres to pack better
-# instead would have kept the right set on 9 of the 16 tips it was tried on
-# (benches/bench_polarity_ties.py).
+# (benches/bench_polarity_ties.py: the first frame's glass band's two
+# contrasts swapped to a tie, on 18 packings of ceramic-glass, glass-pom and
+# glass-pp): the right set (glass dark) balanced the bands better than the
+# one-polarity set by 0.056-0.48 on 16, by 0.001 and 0.022 on two, where the
+# tip then stands, as it did before ties were tried. Glass searched bright
+# beside dark steel, wrongly, balanced them better by 0.015-0.019 (a tie of
+# 5 grey levels made it a candidate). Requiring the spheres to pack better
+# instead would have kept the right set on 9 of the 16 tips it was tried on.
 TIE_BALANCE = 0.05
 MIN_CONFIRMED = 30  # confirmed spheres a group needs for rim limits of its own (median and MAD of fewer are noisy)
 # Rounds of learning a group's outline bias (_ray_bias): the first refit
