@@ -19,6 +19,10 @@ with a sphere found within 0.3 D; heavy / light), and, where sets were
 compared, each set's
 packing (``detect._packing``) and spheres-per-row ratio
 (``detect._band_imbalance``): one polarity first, then each material's own.
+Last, the rim a set's spheres show where it differs from one polarity's:
+in each band whose sign it gives differently, the median rim score
+(``detect._examine``) of the candidates of that sign it finds there, against
+one polarity's candidates there (a measurement; the choice does not use it).
 With ``--maps``, every tipped look whose first frame then misses a class
 (recall below 0.9) is analysed with the same tip: the map's recall, counts
 and c_raw RMSD, and whether ``analyze``'s quality checks flag it.
@@ -77,13 +81,18 @@ def _patched(tip_band: int | None) -> Iterator[dict]:
     """While inside, the detector's learning records each band's relative gap, each set's packing and
     spheres-per-row ratio (yielded), with band ``tip_band``'s two contrasts tipped, if given."""
     contrasts, packing, imbalance = detect._contrasts, detect._packing, detect._band_imbalance
-    seen = {"gaps": [], "packing": [], "ratio": []}
+    band_spheres = detect._band_spheres
+    seen = {"gaps": [], "packing": [], "ratio": [], "rims": []}
 
     def spy_contrasts(image, candidates, d):
         ranked = contrasts(image, candidates, d)
         band = len(seen["gaps"]) - 1  # the frame's own call comes first, then one per band
         seen["gaps"].append(_relative_gap(ranked))
         return _tip(ranked) if band == tip_band and len(ranked) == 2 else ranked
+
+    def spy_band_spheres(image, templates, bands):
+        seen["rims"].append(_rims(image, templates, bands))
+        return band_spheres(image, templates, bands)
 
     def spy_packing(spheres, d):
         seen["packing"].append(packing(spheres, d))
@@ -94,10 +103,40 @@ def _patched(tip_band: int | None) -> Iterator[dict]:
         return np.log(seen["ratio"][-1])
 
     detect._contrasts, detect._packing, detect._band_imbalance = spy_contrasts, spy_packing, spy_imbalance
+    detect._band_spheres = spy_band_spheres
     try:
         yield seen
     finally:
         detect._contrasts, detect._packing, detect._band_imbalance = contrasts, packing, imbalance
+        detect._band_spheres = band_spheres
+
+
+def _rims(image: np.ndarray, templates, bands) -> dict:
+    """A set's signs, and per band and sign the median rim score (``detect._examine``) of the
+    candidates it finds there."""
+    found, rim = detect._examine(detect._smooth(image, templates.d, templates.signs), image, templates)
+    sign = templates.signs[found[:, 4].astype(int)]
+    per_band = []
+    for top, bottom in bands:
+        inside = (found[:, 1] >= top) & (found[:, 1] <= bottom) & np.isfinite(rim)
+        per_band.append({int(s): float(np.median(rim[inside & (sign == s)]))
+                         for s in set(templates.signs.tolist()) if np.any(inside & (sign == s))})
+    return {"signs": templates.signs.tolist(), "rim": per_band}
+
+
+def _rim_where_differing(rims: list[dict]) -> list[list]:
+    """Per set after the first (one polarity) with two groups: [band, one's median rim there, the
+    set's] for each band whose sign the set gives differently from one polarity's."""
+    if not rims:
+        return []
+    one = rims[0]["signs"][0]
+    out = []
+    for r in rims[1:]:
+        if len(r["signs"]) != 2:
+            continue
+        out.append([[k, rims[0]["rim"][k].get(one, float("nan")), r["rim"][k].get(r["signs"][k], float("nan"))]
+                    for k in (0, 1) if r["signs"][k] != one])
+    return out
 
 
 def learn(look: Path, tip_band: int | None) -> dict:
@@ -118,7 +157,7 @@ def learn(look: Path, tip_band: int | None) -> dict:
         dist, _ = cKDTree(found).query(true[:, :2])
         recall.append(float(np.mean(dist < 0.3 * exp.particle_diameter_px)))
     return {"band_gaps": seen["gaps"][1:3], "signs": worker.templates.signs.tolist(), "recall": recall,
-            "packing": seen["packing"], "ratio": seen["ratio"]}
+            "packing": seen["packing"], "ratio": seen["ratio"], "rim_where_differing": _rim_where_differing(seen["rims"])}
 
 
 def the_map(look: Path, tip_band: int | None) -> dict:
@@ -155,7 +194,9 @@ def main() -> None:
                 print(f"{str(look):34s} {mode:6s} gaps {' '.join(f'{g:.3f}' for g in r['band_gaps'])} -> signs "
                       f"{r['signs']} recall {r['recall'][0]:.2f} / {r['recall'][1]:.2f}  packing "
                       f"{' '.join(f'{p:.3f}' for p in r['packing'])}  spheres per row "
-                      f"{' '.join(f'{x:.3f}' for x in r['ratio'])}", flush=True)
+                      f"{' '.join(f'{x:.3f}' for x in r['ratio'])}  rim where a set differs (band: one / set) "
+                      f"{' ; '.join(', '.join(f'{k}: {a:.2f} / {b:.2f}' for k, a, b in d) for d in r['rim_where_differing'])}",
+                      flush=True)
             if args.maps and tipped is not None and min(tipped["recall"]) < MISSED:
                 m = results[str(look)]["tipped_map"] = the_map(look, nearer)
                 print(f"{str(look):34s} tipped map: recall {m['recall']:.3f}, c_raw RMSD {m['rmsd']:.3f}, counts "
