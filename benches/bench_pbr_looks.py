@@ -52,11 +52,11 @@ PBR = Path(__file__).resolve().parents[1] / "tests" / "fixtures" / "pbr"
 
 def _spy_on_learning(choice: str = "auto") -> list[dict]:
     """Record what learn_templates decides: band polarities, each set's packing and the band
-    imbalance of one polarity / each its own; with ``choice`` "one" or "each" force that set to be
-    kept where the bands' polarities differ, with "no-borrowed" never keep a borrowed set."""
+    imbalance, and which set ``detect._kept`` prefers; with ``choice`` "one" or "each" force that set
+    to be kept where the bands' polarities differ, with "no-borrowed" never keep a borrowed set."""
     seen: list[dict] = []
     polarity, polarities = detect._polarity, detect._band_polarities
-    imbalance, packing = detect._band_imbalance, detect._packing
+    imbalance, packing, kept = detect._band_imbalance, detect._packing, detect._kept
     if choice != "auto":
         detect.PACKED_NN = np.inf  # a borrowed set never wins
 
@@ -78,13 +78,15 @@ def _spy_on_learning(choice: str = "auto") -> list[dict]:
     def band_imbalance(spheres, bands):
         value = imbalance(spheres, bands)
         seen.append({"ratio": float(np.exp(value))})
-        if choice in ("auto", "no-borrowed"):
-            return value
-        is_split = sum("ratio" in e for e in seen) >= 2  # one polarity's set comes first
-        return float(is_split) if choice == "one" else float(not is_split)
+        return value
+
+    def kept_set(imbalances, packings, guessed):
+        value = kept(imbalances, packings, guessed)
+        seen.append({"kept": value})  # what the criterion prefers, even where a choice is forced
+        return {"one": 0, "each": 1}.get(choice, value)
 
     detect._polarity, detect._band_polarities = band_polarity, band_polarities
-    detect._band_imbalance, detect._packing = band_imbalance, band_packing
+    detect._band_imbalance, detect._packing, detect._kept = band_imbalance, band_packing, kept_set
     return seen
 
 
@@ -130,12 +132,10 @@ def measure(folder: Path, look: str, seen: list[dict]) -> dict:
                           "borrowed": packing[1 + n_each:]}
         best = int(np.argmax(packing))
         out["borrowed_kept"] = bool(best > n_each and packing[best] >= detect.PACKED_NN)
-    if len(ratios) >= 2:
+    kept = [e["kept"] for e in seen if "kept" in e]
+    if kept:
         out["spheres_per_row_ratio"] = {"one": ratios[0], "each_its_own": ratios[1] if n_each == 1 else ratios[1:]}
-        pairs = [(a, b) for a in tried[0] for b in tried[1] if a != b]
-        guessed = [(a, b) != (tried[0][0], tried[1][0]) for a, b in pairs]
-        best = detect._kept([abs(np.log(r)) for r in ratios], packing[:len(ratios)], guessed)
-        out["criterion_prefers"] = "one" if best == 0 else "each its own" + (f" #{best}" if n_each > 1 else "")
+        out["criterion_prefers"] = "one" if kept[0] == 0 else "each its own" + (f" #{kept[0]}" if n_each > 1 else "")
     return out
 
 

@@ -602,7 +602,8 @@ def _choose_templates(image: np.ndarray, d: float,
     pairs = [[a, b] for a in options[0] for b in options[1] if a[0] != b[0]]
     if not pairs:
         return one
-    guessed = [a is not options[0][0] or b is not options[1][0] for a, b in pairs]
+    stronger = (options[0][0][0], options[1][0][0])  # each band's polarity of the larger contrast
+    guessed = [(a[0], b[0]) != stronger for a, b in pairs]
     splits, borrowed = [], []
     for per_band, guess in zip(pairs, guessed, strict=True):
         own = [_templates_from_seeds(image, seeds, d, sign, one_group=True) for sign, seeds in per_band]
@@ -637,11 +638,8 @@ def _kept(imbalance: list[float], packing: list[float], guessed: list[bool]) -> 
     0.892). A set resting on a tie's weaker polarity must balance the bands
     better by TIE_BALANCE than every set on the stronger polarities.
     """
-    chosen = 0
-    clear = [i for i, guess in enumerate(guessed, start=1) if not guess]
-    for i in clear:
-        if not (imbalance[0] < imbalance[i] and packing[0] > packing[i]):
-            chosen = i
+    clear = [i for i, guess in enumerate(guessed, start=1) if not guess]  # at most one: the stronger polarities
+    chosen = next((i for i in clear if not (imbalance[0] < imbalance[i] and packing[0] > packing[i])), 0)
     best_clear = min(imbalance[i] for i in [0, *clear])
     guesses = [i for i, guess in enumerate(guessed, start=1) if guess and imbalance[i] + TIE_BALANCE < best_clear]
     return min(guesses, key=imbalance.__getitem__) if guesses else chosen
