@@ -80,8 +80,8 @@ def _spy_on_learning(choice: str = "auto") -> list[dict]:
         seen.append({"ratio": float(np.exp(value))})
         return value
 
-    def kept_set(imbalances, packings, guessed):
-        value = kept(imbalances, packings, guessed)
+    def kept_set(imbalances, packings, guessed, sharper):
+        value = kept(imbalances, packings, guessed, sharper)
         seen.append({"kept": value})  # what the criterion prefers, even where a choice is forced
         return {"one": 0, "each": 1}.get(choice, value)
 

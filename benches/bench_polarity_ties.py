@@ -22,7 +22,9 @@ packing (``detect._packing``) and spheres-per-row ratio
 Last, the rim a set's spheres show where it differs from one polarity's:
 in each band whose sign it gives differently, the median rim score
 (``detect._examine``) of the candidates of that sign it finds there, against
-one polarity's candidates there (a measurement; the choice does not use it).
+one polarity's candidates there: where they differ by ``detect.RIM_CLEAR``
+or more, the sharper set is kept (``detect._kept``; ``--rim-clear inf``
+leaves the choice to balance and packing, as before the rims decided).
 With ``--maps``, every tipped look whose first frame then misses a class
 (recall below 0.9) is analysed with the same tip: the map's recall, counts
 and c_raw RMSD, and whether ``analyze``'s quality checks flag it.
@@ -112,16 +114,9 @@ def _patched(tip_band: int | None) -> Iterator[dict]:
 
 
 def _rims(image: np.ndarray, templates, bands) -> dict:
-    """A set's signs, and per band and sign the median rim score (``detect._examine``) of the
-    candidates it finds there."""
-    found, rim = detect._examine(detect._smooth(image, templates.d, templates.signs), image, templates)
-    sign = templates.signs[found[:, 4].astype(int)]
-    per_band = []
-    for top, bottom in bands:
-        inside = (found[:, 1] >= top) & (found[:, 1] <= bottom) & np.isfinite(rim)
-        per_band.append({int(s): float(np.median(rim[inside & (sign == s)]))
-                         for s in set(templates.signs.tolist()) if np.any(inside & (sign == s))})
-    return {"signs": templates.signs.tolist(), "rim": per_band}
+    """A set's signs, and per band and sign the median rim score of the candidates it finds there
+    (``detect._band_rims``)."""
+    return {"signs": templates.signs.tolist(), "rim": detect._band_rims(image, templates, bands)}
 
 
 def _rim_where_differing(rims: list[dict]) -> list[list]:
@@ -175,8 +170,11 @@ def main() -> None:
     ap.add_argument("--maps", action="store_true",
                     help="also analyse every tipped look whose first frame missed a class (recall < 0.9): "
                          "the map's figures and whether its quality checks flag it")
+    ap.add_argument("--rim-clear", type=float, default=detect.RIM_CLEAR,
+                    help="how much sharper [log] a set's rims must be to decide (detect.RIM_CLEAR; inf: never)")
     ap.add_argument("--json", type=Path, default=None, help="also write the figures here")
     args = ap.parse_args()
+    detect.RIM_CLEAR = args.rim_clear
     results = {}
     for folder in args.dirs:
         for name in args.looks:
@@ -204,7 +202,8 @@ def main() -> None:
                       f"{'ok' if m['quality_ok'] else 'flagged: ' + ', '.join(m['failed_checks'])}", flush=True)
     if args.json is not None:
         save_json(args.json, {"command": " ".join(sys.argv), "polarity_tie": detect.POLARITY_TIE,
-                              "tie_balance": detect.TIE_BALANCE, "results": results}, force=True)
+                              "tie_balance": detect.TIE_BALANCE, "rim_clear": detect.RIM_CLEAR,
+                              "results": results}, force=True)
 
 
 if __name__ == "__main__":

@@ -190,14 +190,15 @@ def test_a_band_thinner_than_a_diameter_learns_no_polarity():
 
 def test_one_polarity_overrides_the_bands_own_only_if_it_balances_and_packs_better():
     """The sets' figures as measured on physically based first frames (imbalance as |log| of the
-    spheres-per-row ratio; packing in diameters): set 0 is one polarity, 1 each material's own."""
+    spheres-per-row ratio; packing in diameters): set 0 is one polarity, 1 each material's own. The
+    rims are left undecided (no difference), so balance and packing choose."""
     log = np.log
     # glass beside ceramic, seed offset 600: glass bright balances better (it finds glass's gaps) but packs worse
-    assert _kept([log(1.070), log(1.138)], [0.856, 0.892], [False]) == 1
+    assert _kept([log(1.070), log(1.138)], [0.856, 0.892], [False], [0.0]) == 1
     # glass beside POM (tuning packing): each its own balances better, packs a little worse
-    assert _kept([log(1.488), log(1.030)], [0.881, 0.876], [False]) == 1
+    assert _kept([log(1.488), log(1.030)], [0.881, 0.876], [False], [0.0]) == 1
     # mirror steel over POM before borrowed templates: one polarity better both ways
-    assert _kept([log(1.04), log(1.08)], [0.961, 0.867], [False]) == 0
+    assert _kept([log(1.04), log(1.08)], [0.961, 0.867], [False], [0.0]) == 0
 
 
 def test_a_set_on_a_ties_weaker_polarity_must_balance_the_bands_clearly_better():
@@ -205,10 +206,26 @@ def test_a_set_on_a_ties_weaker_polarity_must_balance_the_bands_clearly_better()
     balances the bands better by 0.10 and is kept; glass bright beside dark steel, tried where a
     wider tie made it a candidate, balanced them better by only 0.019 and is not."""
     log = np.log
-    assert _kept([log(1.169), log(1.056)], [0.858, 0.921], [True]) == 1
-    assert _kept([log(1.068), log(1.048)], [0.899, 0.871], [True]) == 0
+    assert _kept([log(1.169), log(1.056)], [0.858, 0.921], [True], [0.0]) == 1
+    assert _kept([log(1.068), log(1.048)], [0.899, 0.871], [True], [0.0]) == 0
     # beside a set on clear polarities, a guess must beat that one too
-    assert _kept([log(1.775), log(1.101), log(1.063)], [0.876, 0.85, 0.902], [False, True]) == 1
+    assert _kept([log(1.775), log(1.101), log(1.063)], [0.876, 0.85, 0.902], [False, True], [0.0, 0.0]) == 1
+
+
+def test_clearly_sharper_rims_decide_before_balance_and_packing():
+    """The figures of first frames whose glass tie was made to tip (benches/bench_polarity_ties.py),
+    with how much sharper each material's own polarity shows its rims than one polarity's."""
+    log = np.log
+    # glass beside dark steel tipped bright: it balances the bands better, its rims are blunter by 0.61
+    assert _kept([log(1.068), log(1.048)], [0.899, 0.871], [False], [0.0]) == 1
+    assert _kept([log(1.068), log(1.048)], [0.899, 0.871], [False], [-0.61]) == 0
+    # glass beside ceramic tipped bright (seed offset 600): glass dark, a guess, balances worse; sharper by 0.72
+    assert _kept([log(1.070), log(1.138)], [0.856, 0.892], [True], [0.0]) == 0
+    assert _kept([log(1.070), log(1.138)], [0.856, 0.892], [True], [0.72]) == 1
+    # of two sets, the sharper one; a difference as small as mirror steel's (up to 0.34) does not decide
+    assert _kept([0.3, 0.1, 0.05], [0.9, 0.9, 0.9], [False, True], [0.4, 0.6]) == 2
+    assert _kept([log(1.04), log(1.08)], [0.961, 0.867], [False], [0.34]) == 0
+    assert _kept([log(1.04), log(1.08)], [0.961, 0.867], [False], [np.nan]) == 0
 
 
 def test_packing_is_the_worse_bands_nearest_neighbour_distance():
