@@ -80,6 +80,7 @@ def score(r, a) -> dict:
            "centres_settled": next((c.value for c in a.quality.checks if c.name == "centres_settled"), None),
            "vacancies": next((c.value for c in a.quality.checks if c.name == "vacancies"), None),
            "window_lines": next((c.value for c in a.quality.checks if c.name == "window_lines"), None),
+           "ambiguous_spheres": next((c.value for c in a.quality.checks if c.name == "ambiguous_spheres"), None),
            "wall_shifted_count_error": _wall_shifted_count_error(r, a),
            **_blur_figures(a)}
     for name, errs in errors.items():
@@ -203,7 +204,8 @@ def main() -> None:
                   f"wrong class {s['wrong_class']:.4f} RMSD {s['rmsd']:.4f} frame-layer count {s['frame_layer_count_error']:.3f} "
                   f"worst layer {s['worst_layer_count_error']:.3f} quality "
                   f"{'ok' if s['quality_ok'] else 'FAILED ' + ','.join(s['failed_checks'])} "
-                  f"(centres_settled {s['centres_settled']:.2f}, vacancies {s['vacancies']:.3f}, window_lines {s['window_lines']:.3f}; smeared classes "
+                  f"(centres_settled {s['centres_settled']:.2f}, vacancies {s['vacancies']:.3f}, window_lines {s['window_lines']:.3f}, "
+                  f"ambiguous {s['ambiguous_spheres'] if s['ambiguous_spheres'] is not None else float('nan'):.4f}; smeared classes "
                   f"{'kept' if s['classes_learned_smeared'] else 'not kept'}, "
                   f"{s['blur_disagreements_near_plate']}/{s['blur_disagreements']} near the plate; gloss "
                   f"{'at learned spots' if s['gloss_at_learned_spots'] else 'by maxima'}) | bias heavy "

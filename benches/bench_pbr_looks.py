@@ -4,7 +4,8 @@ For every look of a folder rendered by ``python -m granseg.synth.pbr fixtures
 FOLDER`` (the committed fixtures by default): recall of the spheres in the
 window (a truth sphere with a detection within 0.4 D), c_raw RMSD and per-frame
 layer counts (mean over frames and layers of |n - n_true| / n_true) against
-the truth, the ``centres_settled``, ``vacancies`` and ``window_lines`` figures and the quality verdict. With
+the truth, the share of the spheres found in the wrong class, the ``centres_settled``, ``vacancies``,
+``window_lines`` and ``ambiguous_spheres`` figures and the quality verdict. With
 ``--polarities`` also what the detector's learning saw in the first frame: the
 polarity of each band of the stratified start, and, where they differ, how
 well the spheres found by each set of templates pack (one polarity, each
@@ -97,7 +98,7 @@ def measure(folder: Path, look: str, seen: list[dict]) -> dict:
         warnings.simplefilter("ignore")
         a = analyze(folder / look, smooth=1, save=False, progress=False, workers=2)
     d = a.experiment.particle_diameter_px
-    found = total = 0
+    found = total = wrong = 0
     for i, s in enumerate(a.spheres):
         p = truth.particles[i]
         p = p[p[:, 4] > 0]
@@ -105,15 +106,18 @@ def measure(folder: Path, look: str, seen: list[dict]) -> dict:
             total += len(p)
             continue
         dist = np.hypot(*(p[:, None, :2] - np.column_stack([s.x, s.y])[None]).transpose(2, 0, 1))
-        found += int((dist.min(axis=1) < 0.4 * d).sum())
+        hit = dist.min(axis=1) < 0.4 * d
+        found += int(hit.sum())
         total += len(p)
+        wrong += int((s.heavy[dist.argmin(axis=1)[hit]] != (p[hit, 3] > 0)).sum())
     checks = {c.name: c for c in a.quality.checks}
-    out = {"recall": found / max(total, 1),
+    out = {"recall": found / max(total, 1), "wrong_class": wrong / max(found, 1),
            "rmsd": float(np.sqrt(np.nanmean((a.c_raw - truth.c_raw) ** 2))),
            "frame_layer_count_error": float(np.mean(np.abs(a.n - truth.n)[truth.n > 0] / truth.n[truth.n > 0])),
            "centres_settled": float(checks["centres_settled"].value) if "centres_settled" in checks else None,
            "vacancies": float(checks["vacancies"].value) if "vacancies" in checks else None,
            "window_lines": float(checks["window_lines"].value) if "window_lines" in checks else None,
+           "ambiguous_spheres": float(checks["ambiguous_spheres"].value) if "ambiguous_spheres" in checks else None,
            "quality_ok": bool(a.quality.ok), "failed_checks": [c.name for c in a.quality.failed],
            **_blur_figures(a)}
     # the whole frame's polarity comes first, then one per band (learn_templates' order)
@@ -161,8 +165,10 @@ def main() -> None:
         settled = "-" if r["centres_settled"] is None else f"{r['centres_settled']:.2f}"
         vacant = "-" if r["vacancies"] is None else f"{r['vacancies']:.3f}"
         lines = "-" if r["window_lines"] is None else f"{r['window_lines']:.3f}"
+        unsure = "-" if r["ambiguous_spheres"] is None else f"{r['ambiguous_spheres']:.3f}"
         line = (f"{look:18s} recall {r['recall']:.3f}  c_raw RMSD {r['rmsd']:.3f}  per-frame layer counts "
-                f"{100 * r['frame_layer_count_error']:4.1f} %  centres_settled {settled}  vacancies {vacant}  window_lines {lines}  "
+                f"{100 * r['frame_layer_count_error']:4.1f} %  wrong class {100 * r['wrong_class']:.1f} %  "
+                f"centres_settled {settled}  vacancies {vacant}  window_lines {lines}  ambiguous {unsure}  "
                 f"{'ok' if r['quality_ok'] else 'flagged: ' + ', '.join(r['failed_checks'])}  smeared classes "
                 f"{'kept' if r['classes_learned_smeared'] else 'not kept'} "
                 f"({r['blur_disagreements_near_plate']}/{r['blur_disagreements']} near the plate), gloss "

@@ -61,7 +61,8 @@ def test_packing_is_dense_random_and_free_of_overlaps():
     assert 0.95 < n_area < 1.1  # spheres per d^2: dense (hexagonal 1.15)
 
 
-@pytest.mark.parametrize("material", ["steel", "ceramic", "glass", "pom", "pp", "steel-polished", "pom-grey", "pp-grey"])
+@pytest.mark.parametrize("material", ["steel", "ceramic", "glass", "pom", "pp", "steel-polished", "pom-grey", "pp-grey",
+                                      "pp-matte-grey"])
 def test_each_material_draws_distinct_spheres(material):
     c = np.ones((1, 15))
     r = render_frames(c, heavy=material, light="pp" if material != "pp" else "pom",
@@ -89,6 +90,20 @@ def test_exposure_drift_ramps_the_gain_over_the_run():
     assert all(np.array_equal(a, b) for a, b in zip(steady.particles, darker.particles, strict=True))
     with pytest.raises(ValueError, match="exposure_drift"):
         render_frames(_map(1), exposure_drift=-1.0)
+
+
+def test_a_lamp_above_darkens_the_frame_down_its_height():
+    """light_from_above = 0.4: the top rows keep their light, the bottom rows get about 60 % of it
+    (the canvas extends a little past the image), and the spheres stay where they were."""
+    level = render_frames(_map(1), particle_diameter_px=20, image_size=(400, 480), noise=0, seed=5)
+    above = render_frames(_map(1), particle_diameter_px=20, image_size=(400, 480), noise=0, seed=5,
+                          light_from_above=0.4)
+    rows = [float(b.astype(float)[band].mean() / a.astype(float)[band].mean())
+            for a, b in ((level.images[0], above.images[0]),) for band in (slice(0, 40), slice(-40, None))]
+    assert rows[0] > 0.93 and 0.55 < rows[1] < 0.7, rows
+    assert np.array_equal(level.particles[0], above.particles[0])
+    with pytest.raises(ValueError, match="light_from_above"):
+        render_frames(_map(1), light_from_above=1.0)
 
 
 def test_bad_arguments_are_named():

@@ -189,6 +189,21 @@ def test_grey_pairs_differ_in_gloss_not_in_mean_brightness_or_hue():
     assert bright[0] > bright[1] + 40  # the glossy PP's highlights
 
 
+def test_a_grey_pair_can_differ_in_brightness_only():
+    """pom-grey and pp-matte-grey: the same matte finish, no hue, the second about a fifth darker."""
+    c = np.zeros((1, 15))
+    c[0, 7:] = 1
+    r = render_frames(c, heavy="pom-grey", light="pp-matte-grey", seed=2, particle_diameter_px=30,
+                      image_size=(480, 600), **FLAT)
+    grey = r.images[0].astype(float).mean(axis=2)
+    yy, xx = np.mgrid[0:grey.shape[0], 0:grey.shape[1]]
+    pix = {k: np.any([(xx - x) ** 2 + (yy - y) ** 2 < (0.4 * d) ** 2 for x, y, d, heavy, inside in r.particles[0]
+                      if inside and int(heavy) == k], axis=0) for k in (0, 1)}
+    assert 0.7 < grey[pix[0]].mean() / grey[pix[1]].mean() < 0.9
+    bright = {k: np.percentile(grey[m], 99.5) - np.median(grey[m]) for k, m in pix.items()}
+    assert abs(bright[0] - bright[1]) < 0.2 * bright[1] + 5  # alike in gloss
+
+
 def test_polished_steel_is_a_mirror_darker_than_satin_steel():
     c = np.ones((1, 15))
     looks = {}

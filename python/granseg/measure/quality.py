@@ -60,6 +60,17 @@ __all__ = ["Check", "Quality", "QualityWarning", "WallLines", "assess", "depth_m
            "window_check_of"]
 
 VERSION = 1
+# Spheres whose p_heavy is ambiguous, as a share of all counted. Distinct
+# materials leave under 1 % so: at most 0.12 % on the 2-D tuning looks (seed
+# 7), 0.18 % on the physically based looks that meet the targets (tuning
+# packings and fixtures); a merged class leaves tens of per cent. Two matte
+# greys 21 % apart in brightness and alike in finish leave 2.5-3.5 %, with
+# 0.4-1.5 % of the spheres in the wrong class and c_raw off by 0.025-0.042,
+# which the former limit (5 %) let through (2-D tuning seeds 7-8). Read
+# after: distinct materials under the harshest combined changes 1.66 %, on the
+# 2-D held-out seeds 1.46 %; the pair's seeds 9-12 2.5-5.4 % (BENCHMARKS.md,
+# "A pair that differs in brightness only").
+AMBIGUOUS_SHARE = 0.02
 # A centre the outline fit still moves in its last iteration has not settled
 # on an outline, and where it ends is uncertain by about that step. The 90th
 # percentile of that step, measured on the tuning looks (2-D renderer seeds
@@ -313,8 +324,7 @@ def _class_checks(separation: Any | None, p_heavy: np.ndarray | None) -> list[Ch
                                  "share of the class difference explained by a sphere's height"))
     if p_heavy is not None and len(p_heavy):
         amb = float(np.mean((p_heavy > AMBIGUOUS[0]) & (p_heavy < AMBIGUOUS[1])))
-        # 0.05: distinct materials leave < 1 % ambiguous; a merged class leaves tens of %
-        checks.append(_check("ambiguous_spheres", amb, 0.05, "<=",
+        checks.append(_check("ambiguous_spheres", amb, AMBIGUOUS_SHARE, "<=",
                              f"share of spheres with p_heavy in {AMBIGUOUS}"))
     return checks
 

@@ -70,6 +70,10 @@ MATERIAL_LOOKS: dict[str, dict[str, Any]] = {
     # little darker body, a small strong highlight), so the two differ in gloss only.
     "pp-grey": dict(colour=(0.42, 0.42, 0.43), kd=0.9, ks=0.75, shininess=90, metal=False,
                     glass=False, size_spread=0.008, material="pp"),
+    # Matte dark-grey polypropylene: pom-grey's finish a shade darker, so the
+    # two differ in brightness only, as a lamp's fall-off down the bed does.
+    "pp-matte-grey": dict(colour=(0.34, 0.34, 0.35), kd=0.9, ks=0.10, shininess=10, metal=False,
+                          glass=False, size_spread=0.01, material="pp"),
 }
 
 # Printed PLA of the bumpy lid and plate (the paper's horizontal walls): matte light grey.
@@ -156,6 +160,7 @@ def render_frames(
     exposure: float = 1.0,
     exposure_drift: float = 0.0,
     vignetting: float = 0.25,
+    light_from_above: float = 0.0,
     blur: float = 0.7,
     noise: float = 2.0,
     jpeg_quality: int | None = None,
@@ -207,6 +212,10 @@ def render_frames(
         ``exposure * (1 + exposure_drift)`` at the last (-0.25: a quarter
         darker by the end). 0: steady.
     vignetting : relative darkening at the image corners.
+    light_from_above : relative darkening from the image's top to its bottom, as
+        under a lamp above the cell (0.4: the bottom gets 60 % of the top's
+        light). A look that changes with height, as the first frame's heavy
+        spheres all sit high: 0, none.
     blur : Gaussian blur sigma of the optics [px].
     noise : sensor noise standard deviation [grey levels of 255].
     jpeg_quality : None for lossless PNG frames, else JPEG quality 1-100.
@@ -262,6 +271,8 @@ def render_frames(
         raise ValueError(f"lid_slip must be in [0, 1) (v1 / v0), got {lid_slip!r}")
     if not (np.isfinite(exposure_drift) and exposure_drift > -1.0):
         raise ValueError(f"exposure_drift must be > -1 (the last frame's gain stays positive), got {exposure_drift!r}")
+    if not (np.isfinite(light_from_above) and 0.0 <= light_from_above < 1.0):
+        raise ValueError(f"light_from_above must be in [0, 1) (the bottom's light stays positive), got {light_from_above!r}")
     heavy_look, light_look = _look(heavy, colours), _look(light, colours)
     apparatus = _apparatus(bumps, bump_spacing, smear_diameters, wall_reflections, dust, video, video_bitrate)
     d = float(particle_diameter_px)
@@ -287,7 +298,7 @@ def render_frames(
         x = bed.positions(i, shift, delta_over_H, lid_slip, exact_speeds)
         bed.assign_types(x, cmap[i], rng)
         gain = exposure * (1.0 + exposure_drift * i / max(cmap.shape[0] - 1, 1))
-        ideal = scene.draw(x, bed, gain, vignetting)
+        ideal = scene.draw(x, bed, gain, vignetting, light_from_above)
         images.append(_camera_effects(ideal, sensor_map, blur, noise, jpeg_quality, rng))
         truth.append(bed.truth(x))
         bump_truth.append(bed.bump_truth())
@@ -720,7 +731,8 @@ class _Scene:
         tint = np.array([1.0, 0.98, 0.95], np.float32)  # white LEDs, a little cool
         return mul, add[..., None] * tint
 
-    def draw(self, x: np.ndarray, bed: _Bed, exposure: float, vignetting: float) -> np.ndarray:
+    def draw(self, x: np.ndarray, bed: _Bed, exposure: float, vignetting: float,
+             from_above: float = 0.0) -> np.ndarray:
         img = self.base.copy()
         cx, cy = x - self.ox, bed.y - self.oy
         r = bed.diam / 2
@@ -738,7 +750,7 @@ class _Scene:
         if acc is not None:
             light, cover = acc
             img = img * (1 - np.clip(cover, 0, 1))[..., None] + light / np.maximum(cover, 1)[..., None]
-        img = self._illumination(img, exposure, vignetting)
+        img = self._illumination(img, exposure, vignetting, from_above)
         if self.overlay is not None:
             mul, add = self.overlay
             img = np.clip(img * mul[..., None] + add, 0, 1.2).astype(np.float32)
@@ -870,12 +882,16 @@ class _Scene:
         body = (0.22 + 1.8 * seen) * tint * (1 - 0.85 * ring[..., None])
         return body + 0.25 * np.exp(-((rim - 0.93) / 0.05) ** 2)[..., None]
 
-    def _illumination(self, img: np.ndarray, exposure: float, vignetting: float) -> np.ndarray:
-        """Lamps at the sides and lens vignetting: smooth brightness over the image."""
+    def _illumination(self, img: np.ndarray, exposure: float, vignetting: float,
+                      from_above: float = 0.0) -> np.ndarray:
+        """Lamps at the sides, lens vignetting and a lamp above (``from_above``): smooth brightness
+        over the image."""
         yy, xx = np.mgrid[0:self.ch, 0:self.cw].astype(np.float32)
         u = (xx - self.cw / 2) / (self.cw / 2)
         v = (yy - self.ch / 2) / (self.ch / 2)
         gain = exposure * (1 - vignetting * (u * u + v * v) / 2)
+        if from_above > 0:  # the light falls off linearly down the canvas
+            gain = gain * (1 - from_above * yy / max(self.ch - 1, 1))
         return np.clip(img * gain[..., None], 0, 1.2).astype(np.float32)
 
 
