@@ -183,6 +183,11 @@ def main() -> None:
     ap.add_argument("--variants", type=_variants, default={"": {}}, metavar="JSON",
                     help="render every scene once per variant: a JSON object {name: {setting: value}} "
                          "(or a .json file holding one), applied on top of --set")
+    ap.add_argument("--end", choices=["graded", "unmixed"], default="graded",
+                    help="how the rendered runs end: graded (mixing_map, the default) or un-mixed the other way "
+                         "up (unmixing_map)")
+    ap.add_argument("--ends-unmixed", action="store_true",
+                    help="analyse with ends_unmixed: the classes learned from the last frame too")
     ap.add_argument("--json", type=Path, default=None, help="also write the figures here")
     args = ap.parse_args()
     force_smeared(args.smeared)
@@ -194,10 +199,12 @@ def main() -> None:
         runs, detected, true = {}, 0, 0
         for seed in args.seeds:
             with tempfile.TemporaryDirectory() as tmp:
-                r = render_scene(scene, args.frames, seed=seed, out_dir=Path(tmp), **{**overrides, **changes})
+                r = render_scene(scene, args.frames, end=args.end, seed=seed, out_dir=Path(tmp),
+                                 **{**overrides, **changes})
                 with warnings.catch_warnings():
                     warnings.simplefilter("ignore", QualityWarning)  # scored below
-                    a = analyze(r.source, smooth=1, save=False, progress=False, workers=2)
+                    a = analyze(r.source, smooth=1, save=False, progress=False, workers=2,
+                                ends_unmixed=args.ends_unmixed)
             runs[seed] = s = score(r, a)
             detected, true = detected + a.n.sum(axis=0), true + r.n.sum(axis=0)
             print(f"{name:28s} seed {seed:3d}: recall {s['recall']:.3f} precision {s['precision']:.3f} "

@@ -31,6 +31,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--detections", metavar="FILE.csv",
                    help="also write every sphere counted: frame, x, y (undistorted px), r (px), class, "
                         "p_heavy, layer")
+    p.add_argument("--ends-unmixed", action="store_true",
+                   help="the run ends un-mixed (a large density ratio: heavy below c0 H, light above): learn "
+                        "the classes from its last frame too, so that a look changing with height is not "
+                        "taken for the material")
     p.add_argument("--strict", action="store_true",
                    help="exit with status 3 when the map fails a quality check (the map is still written)")
     p.add_argument("--workers", metavar="N", type=int, help="parallel workers (default: all cores)")
@@ -52,7 +56,8 @@ def run(args: argparse.Namespace) -> int:
         result = analyze(args.path, out=args.out, smooth=args.smooth, smooth_seconds=args.smooth_seconds,
                          preview=args.preview,
                          preview_count=args.preview_count, force=args.force,
-                         workers=args.workers, progress=not args.no_progress, detections=args.detections)
+                         workers=args.workers, progress=not args.no_progress, detections=args.detections,
+                         ends_unmixed=args.ends_unmixed)
     for w in caught:
         print(f"warning: {w.message}")
     good = len(result.frame_names) - len(result.bad_frames)
@@ -74,6 +79,9 @@ def run(args: argparse.Namespace) -> int:
                 else "learned from sharp spheres only (motion blur ruled out)")
         print(f"classes {kept}: of the {figures['blur_disagreements']} spheres the two sets of classes "
               f"class differently, {figures['blur_disagreements_near_plate']} lie within 3 diameters of the plate")
+    if figures.get("classes_learned_from_the_end"):
+        print("classes learned from the first frame and from the last (the run ends un-mixed)"
+              + (", with each sphere's height" if result.classes.uses_height else ""))
     if figures.get("gloss_at_learned_spots"):  # the first frame showed a speck lighting a maximum
         print("gloss read where the first frame's glossy spheres show the lamps, not at each sphere's "
               "brightest point (it told the first frame's spheres apart better)")

@@ -287,17 +287,23 @@ class MaterialClasses:
     separation: Separation
     blur: BlurTest | None = None
     columns: tuple[int, ...] = LEARNED  # the FEATURES the model reads: LEARNED or LEARNED_AT_SPOTS
+    uses_height: bool = False  # the model also reads each sphere's height (offered when learned from both ends)
+    both_ends: bool = False  # learned from the first frame and the un-mixed last (learn_classes' labelled_by)
 
-    def p_heavy(self, features: np.ndarray) -> np.ndarray:
-        """Probability [0, 1] that each sphere (features (m, len(FEATURES))) is heavy."""
+    def p_heavy(self, features: np.ndarray, height: np.ndarray | None = None) -> np.ndarray:
+        """Probability [0, 1] that each sphere (features (m, len(FEATURES))) is heavy; ``height``
+        [diameters above the bottom wall] is needed by classes learned from both ends of a run."""
         if len(features) == 0:
             return np.zeros(0)
-        return self.model.predict_proba(np.asarray(features)[:, self.columns])[:, 1]
+        if self.uses_height and height is None:
+            raise ValueError("these classes were learned from both ends of a run and need the spheres' heights")
+        return self.model.predict_proba(_model_input(features, height if self.uses_height else None,
+                                                     self.columns))[:, 1]
 
     @property
     def gloss_at_spots(self) -> bool:
         """Whether gloss is read at the learned spots (else as the disk's brightest points)."""
-        return self.columns == LEARNED_AT_SPOTS
+        return self.columns[:len(LEARNED_AT_SPOTS)] == LEARNED_AT_SPOTS
 
 
 # Horizontal smears [diameters] the labelled spheres are also learned under.
@@ -359,8 +365,9 @@ def blur_test(height: np.ndarray, sharp_heavy: np.ndarray, smeared_heavy: np.nda
 
 def learn_classes(features: np.ndarray, height: np.ndarray, c0: float, n_layers: int,
                   augmented: list[np.ndarray] | tuple = (), seed: int = 0,
-                  rises: list[np.ndarray] | None = None) -> MaterialClasses:
-    """Learn heavy and light from the first frame's spheres.
+                  rises: list[np.ndarray] | None = None,
+                  labelled_by: np.ndarray | None = None) -> MaterialClasses:
+    """Learn heavy and light from the first frame's spheres (and the last frame's, ``labelled_by``).
 
     ``features`` (m, len(FEATURES)) and ``height`` [diameters above the bottom
     wall] of the first frame's spheres; ``c0`` the heavy volume fraction;
@@ -380,20 +387,52 @@ def learn_classes(features: np.ndarray, height: np.ndarray, c0: float, n_layers:
     there as a confident miss. The final classes read the ``features`` as
     given (their spot column from weights fitted to every labelled sphere,
     as every frame's is).
+
+    ``labelled_by``: the heights [diameters] that label the spheres, where
+    they differ from ``height``: a run whose density ratio leaves it un-mixed
+    at the end shows heavy below c0 H and light above, the first frame turned
+    upside down, so its last frame's spheres come labelled by n_layers less
+    their height. With them, every class is seen high and low, so a look
+    that changes with height (a lamp above the cell, the plate's motion blur)
+    can no longer pass for the material, and the classes also read each
+    sphere's height (``uses_height``) to take such a change off.
     """
     h = np.asarray(height, dtype=float)
-    label = _labels(h, c0, n_layers)
+    both_ends = labelled_by is not None
+    label = _labels(np.asarray(labelled_by, dtype=float) if both_ends else h, c0, n_layers)
     use = label >= 0
     y, h = label[use], h[use]
     n_heavy, n_light = int((y == 1).sum()), int((y == 0).sum())
-    views = [np.asarray(v, dtype=float)[use] for v in (features, *augmented)]
-    tried = [(LEARNED, *_fit_classes(views, y, LEARNED, seed))]
+    views = [_with_height(np.asarray(v, dtype=float)[use], h if both_ends else None) for v in (features, *augmented)]
+    # the height is offered only where both ends label the spheres; like gloss at the spots, it is
+    # kept where it tells the labelled spheres apart better (lower cross-validated log-loss)
+    sets = [LEARNED] + ([LEARNED + (HEIGHT_COLUMN,)] if both_ends else [])
+    tried = [(cols, *_fit_classes(views, y, cols, seed)) for cols in sets]
     if rises is not None:
-        tried.append((LEARNED_AT_SPOTS, *_fit_classes(views, y, LEARNED_AT_SPOTS, seed,
-                                                       [np.asarray(r, dtype=float)[use] for r in rises])))
+        rises = [np.asarray(r, dtype=float)[use] for r in rises]
+        tried += [(LEARNED_AT_SPOTS + cols[len(LEARNED):], *_fit_classes(views, y, LEARNED_AT_SPOTS + cols[len(LEARNED):],
+                                                                          seed, rises)) for cols in sets]
     columns, model, _, accuracy = min(tried, key=lambda t: t[2])  # the lower log-loss
     score = model.decision_function(views[0][:, columns])
-    return MaterialClasses(model, Separation(accuracy, _height_share(score, y, h), n_heavy, n_light), columns=columns)
+    return MaterialClasses(model, Separation(accuracy, _height_share(score, y, h), n_heavy, n_light), columns=columns,
+                           uses_height=HEIGHT_COLUMN in columns, both_ends=both_ends)
+
+
+# Where a sphere's height [diameters] sits among the model's inputs when the
+# classes read it: one column past FEATURES. It needs no finer resolution
+# than a tenth of a diameter.
+HEIGHT_COLUMN = len(FEATURES)
+_HEIGHT_RESOLUTION = 0.1
+
+
+def _with_height(features: np.ndarray, height: np.ndarray | None) -> np.ndarray:
+    """``features`` with each sphere's height as one more column (unchanged without heights)."""
+    return features if height is None else np.column_stack([features, height])
+
+
+def _model_input(features: np.ndarray, height: np.ndarray | None, columns: tuple[int, ...]) -> np.ndarray:
+    """The model's columns of ``features`` (with ``height`` as HEIGHT_COLUMN, if given)."""
+    return _with_height(np.asarray(features, dtype=float), height)[:, columns]
 
 
 def _labels(height: np.ndarray, c0: float, n_layers: int) -> np.ndarray:
@@ -422,7 +461,8 @@ def _fit_classes(views: list[np.ndarray], y: np.ndarray, columns: tuple[int, ...
         # Logistic regression: outliers (a shadowed sphere, a highlight off
         # centre) pull a linear boundary less than they pull a Gaussian class,
         # and its probabilities are usable as they come.
-        model = make_pipeline(ResolvedScaler([RESOLUTION[FEATURES[j]] for j in columns]),
+        model = make_pipeline(ResolvedScaler([_HEIGHT_RESOLUTION if j == HEIGHT_COLUMN else RESOLUTION[FEATURES[j]]
+                                              for j in columns]),
                               LogisticRegression(C=1.0, max_iter=1000))
         return model.fit(np.concatenate([v[rows][:, columns] for v in vs]), np.tile(y[rows], len(vs)))
 

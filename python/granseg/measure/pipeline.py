@@ -147,6 +147,7 @@ def analyze(
     workers: int | None = None,
     progress: bool = True,
     detections: str | os.PathLike | None = None,
+    ends_unmixed: bool = False,
 ) -> Analysis:
     """Measure the heavy-concentration map of an experiment from its frames.
 
@@ -170,6 +171,12 @@ def analyze(
     progress : show a progress bar.
     detections : CSV file to write with one row per sphere counted (see
         :func:`write_detections`).
+    ends_unmixed : the run ends un-mixed (a large density ratio): its last
+        frame shows the heavy spheres below c0 H and the light above, and its
+        spheres are learned from too, labelled by where they sit. Each class
+        is then seen high and low, so a look that changes with height (a lamp
+        above the cell, the plate's motion blur) is not taken for the
+        material. A wrong claim shows in ``class_separation``.
 
     Every map gets a quality record (:mod:`granseg.measure.quality`), stored
     in the file as ``quality``; a failed check raises a
@@ -179,6 +186,8 @@ def analyze(
     spheres becomes a NaN row with a :class:`BadFrameWarning`; bad input
     files or fields raise ValueError / FileNotFoundError naming them.
     """
+    if not isinstance(ends_unmixed, bool | np.bool_):
+        raise ValueError(f"ends_unmixed: expected True or False, got {ends_unmixed!r}")
     if isinstance(smooth, bool) or not isinstance(smooth, int | np.integer) or smooth < 1 or smooth % 2 == 0:
         raise ValueError(f"smooth: expected an odd number of frames >= 1 (1 = none), got {smooth!r}")
     _check_count("workers", workers, 1, allow_none=True)
@@ -196,10 +205,12 @@ def analyze(
     if detections is not None:
         check_writable(detections, force)
     keep = _preview_indices(len(source), preview_count if preview is not None else 2)
+    if ends_unmixed:  # the images of the last frames, one of which labels the classes
+        keep |= set(range(max(0, len(source) - END_FRAMES), len(source)))
     if preview is not None:
         check_previews(Path(preview), [source.names[i] for i in sorted(keep) if i < len(source.names)], force)
     spheres, crops, bad, names, spots = _detect_all(source, exp, workers, progress, keep)
-    classes = _classify(spheres, exp, crops, spots)
+    classes = _classify(spheres, exp, crops, spots, ends_unmixed)
     shift = _level_classes(spheres, exp)
     result = _assemble(spheres, exp, fps, smooth, names, bad)
     result.classes = classes
@@ -563,47 +574,79 @@ def _check_video_length(source, names, results) -> None:
 # --------------------------------------------------------------------------- pass 2: classes
 
 
-def _classify(spheres: list[FrameSpheres | None], exp: Experiment,
-              crops: dict[int, np.ndarray], spots: np.ndarray | None) -> MaterialClasses | None:
-    """Give every sphere its class: learned from the first good frame, or by explicit colour ranges."""
+def _classify(spheres: list[FrameSpheres | None], exp: Experiment, crops: dict[int, np.ndarray],
+              spots: np.ndarray | None, ends_unmixed: bool = False) -> MaterialClasses | None:
+    """Give every sphere its class: learned from the first good frame (and the last, if the run ends
+    un-mixed: classify.learn_classes), or by explicit colour ranges."""
     good = [s for s in spheres if s is not None]
     if exp.colour_ranges:
         for s in good:
             s.heavy = classify_by_ranges(s.features, exp.colour_ranges)
         return None
     i0 = next(i for i, s in enumerate(spheres) if s is not None)
-    first = spheres[i0]
-    crop = crops.get(i0)  # the first frame's image, if kept
-    centres = np.column_stack([first.x, first.y]) - np.asarray(exp.crop_origin(), dtype=float)
+    labelled = [(spheres[i0], crops.get(i0))] + ([_last_frame(spheres, crops, i0, exp)] if ends_unmixed else [])
     d = exp.particle_diameter_px
+    origin = np.asarray(exp.crop_origin(), dtype=float)
+    centres = [np.column_stack([s.x, s.y]) - origin for s, _ in labelled]
+    features = np.concatenate([s.features for s, _ in labelled])
+    heights = [height(s.y, exp.window) for s, _ in labelled]
+    # the last frame of a run that ends un-mixed is the first turned upside down
+    labelled_by = np.concatenate([heights[0], N_LAYERS - heights[1]]) if ends_unmixed else None
+    kept = all(crop is not None for _, crop in labelled)  # the labelled frames' images
     # gloss at the learned spots is tried only where each fold can fit its own spot weights
-    rises = [disk_rises(crop, centres, d)] if crop is not None and spots is not None else None
+    rises = ([np.concatenate([disk_rises(crop, c, d) for (_, crop), c in zip(labelled, centres, strict=True)])]
+             if kept and spots is not None else None)
     try:
-        classes = learn_classes(first.features, height(first.y, exp.window), exp.c0, N_LAYERS, rises=rises)
-        if crop is not None:  # the first frame's spheres also learned as if smeared by motion
-            classes = _smeared_if_blurred(classes, first, crop, centres, good, exp, spots, rises)
+        classes = learn_classes(features, np.concatenate(heights), exp.c0, N_LAYERS, rises=rises,
+                                labelled_by=labelled_by)
+        if kept:  # the labelled spheres also learned as if smeared by motion
+            classes = _smeared_if_blurred(classes, labelled, centres, labelled_by, good, exp, spots, rises)
     except ValueError as exc:
         raise ValueError(f"{exp.path.parent}: {exc}") from None
     for s in good:
-        s.p_heavy = classes.p_heavy(s.features)
+        s.p_heavy = classes.p_heavy(s.features, height(s.y, exp.window))
         s.heavy = s.p_heavy > 0.5
     return classes
 
 
-def _smeared_if_blurred(sharp: MaterialClasses, first: FrameSpheres, crop: np.ndarray, centres: np.ndarray,
-                        good: list[FrameSpheres], exp: Experiment, spots: np.ndarray | None,
+# The last frames a run that ends un-mixed may take its labelled spheres from
+# (the last one that could be read); their images are kept for it.
+END_FRAMES = 3
+
+
+def _last_frame(spheres: list[FrameSpheres | None], crops: dict[int, np.ndarray], i0: int,
+                exp: Experiment) -> tuple[FrameSpheres, np.ndarray]:
+    """The run's last good frame among its last END_FRAMES, and its image."""
+    for i in range(len(spheres) - 1, max(i0, len(spheres) - 1 - END_FRAMES), -1):
+        if spheres[i] is not None and i in crops:
+            return spheres[i], crops[i]
+    raise ValueError(f"ends_unmixed (CLI --ends-unmixed): none of the last {END_FRAMES} frames after the first "
+                     "could be read, so the run's un-mixed end cannot label the classes")
+
+
+def _smeared_if_blurred(sharp: MaterialClasses, labelled: list[tuple[FrameSpheres, np.ndarray]],
+                        centres: list[np.ndarray], labelled_by: np.ndarray | None, good: list[FrameSpheres],
+                        exp: Experiment, spots: np.ndarray | None,
                         rises: list[np.ndarray] | None) -> MaterialClasses:
-    """The classes learned from the first frame's spheres and their smeared copies too, if the run
-    shows motion blur for them to undo (classify.blur_test); else ``sharp``, with the test kept."""
+    """The classes learned from the labelled frames' spheres (``labelled``: each frame's spheres and
+    image) and their smeared copies too, if the run shows motion blur for them to undo
+    (classify.blur_test); else ``sharp``, with the test kept."""
     d = exp.particle_diameter_px
-    blurred = smeared_images(crop, d)
-    augmented = [sphere_features(image, centres, d, spots) for image in blurred]
+    blurred = [smeared_images(crop, d) for _, crop in labelled]  # per frame, one image per smear
+
+    def per_smear(describe) -> list[np.ndarray]:
+        return [np.concatenate([describe(images[k], c) for images, c in zip(blurred, centres, strict=True)])
+                for k in range(len(blurred[0]))]
+
+    augmented = per_smear(lambda image, c: sphere_features(image, c, d, spots))
     if rises is not None:
-        rises = rises + [disk_rises(image, centres, d) for image in blurred]
-    smeared = learn_classes(first.features, height(first.y, exp.window), exp.c0, N_LAYERS, augmented, rises=rises)
+        rises = rises + per_smear(lambda image, c: disk_rises(image, c, d))
+    smeared = learn_classes(np.concatenate([s.features for s, _ in labelled]),
+                            np.concatenate([height(s.y, exp.window) for s, _ in labelled]), exp.c0, N_LAYERS,
+                            augmented, rises=rises, labelled_by=labelled_by)
     features = np.concatenate([s.features for s in good])
-    test = blur_test(np.concatenate([height(s.y, exp.window) for s in good]),
-                     sharp.p_heavy(features) > 0.5, smeared.p_heavy(features) > 0.5)
+    heights = np.concatenate([height(s.y, exp.window) for s in good])
+    test = blur_test(heights, sharp.p_heavy(features, heights) > 0.5, smeared.p_heavy(features, heights) > 0.5)
     return replace(smeared if test.smeared else sharp, blur=test)
 
 
@@ -640,6 +683,7 @@ def _assess(result: Analysis, shift: tuple[float, int] = (0.0, 0)) -> Quality:
         gloss_at_spots=result.classes.gloss_at_spots if learned else None,
         vacant=_vacant(good, result.experiment),
         walls=wall_lines(np.r_[first.y, first.wall_y], result.experiment.window),
+        learned_from_end=learned and result.classes.both_ends,
     )
 
 

@@ -238,7 +238,7 @@ def assess(*, n: np.ndarray, n_heavy: np.ndarray, c0: float, first_heights: np.n
            exposure_matched: bool = False, class_shift: tuple[float, int] = (0.0, 0), blur: Any | None = None,
            placed: dict[str, np.ndarray] | None = None,
            gloss_at_spots: bool | None = None, vacant: tuple[int, int] | None = None,
-           walls: WallLines | None = None) -> Quality:
+           walls: WallLines | None = None, learned_from_end: bool = False) -> Quality:
     """Run every check on one analysed run.
 
     n, n_heavy: (n_t, n_layers) counts (rows of bad frames all zero);
@@ -271,7 +271,9 @@ def assess(*, n: np.ndarray, n_heavy: np.ndarray, c0: float, first_heights: np.n
     run's vacancies (places where a sphere would fit between those found,
     :func:`vacancies`) and the spheres found where they were looked for (None:
     not checked); walls: how far the window's lid and plate lines are off the
-    walls (:func:`wall_lines`; None: not checked).
+    walls (:func:`wall_lines`; None: not checked); learned_from_end: whether the
+    classes were also learned from the run's un-mixed last frame (recorded as
+    the figure ``classes_learned_from_the_end``).
     """
     n_t, n_layers = n.shape
     good = n.sum(axis=1) > 0
@@ -295,6 +297,8 @@ def assess(*, n: np.ndarray, n_heavy: np.ndarray, c0: float, first_heights: np.n
         figures.update(labelled_heavy=separation.n_heavy, labelled_light=separation.n_light)
     if gloss_at_spots is not None:
         figures["gloss_at_learned_spots"] = bool(gloss_at_spots)
+    if learned_from_end:
+        figures["classes_learned_from_the_end"] = True
     for name, flags in (placed or {}).items():
         if len(flags):
             figures[name] = float(np.mean(flags))

@@ -33,13 +33,14 @@ from granseg.synth.scenes import (
     mixing_map,
     render_scene,
     scene_names,
+    unmixing_map,
 )
 
 __all__ = [
     "APPARATUS_SCENES", "MATERIAL_LOOKS", "MIXTURE_SCENES", "NOISE_PROCESSES", "SCENES", "TABLE1",
     "VIDEO_CODECS", "WIDE_ANGLE", "Condition", "NoiseProcess", "RenderedFrames", "campaign", "default_camera",
     "mixing_map", "random_conditions", "random_effect", "render_checkerboard", "render_frames", "render_scene",
-    "scene_names",
+    "scene_names", "unmixing_map",
 ]
 
 

@@ -47,7 +47,7 @@ import numpy as np
 from granseg.synth.frames import render_frames
 
 __all__ = ["APPARATUS_SCENES", "MIXTURE_SCENES", "SCENES", "WIDE_ANGLE", "mixing_map", "render_scene",
-           "scene_names"]
+           "scene_names", "unmixing_map"]
 
 SCENES: dict[str, dict[str, Any]] = {
     # white ceramic lit from the upper left: its shadowed rim is as dark as the gaps
@@ -142,12 +142,27 @@ def mixing_map(n_t: int, n_layers: int = 15, c0: float = 0.5) -> np.ndarray:
     return np.clip(np.where(z > 1 - c0, 1.0, 0.0) * (1 - t) + final * t, 0, 1)
 
 
-def render_scene(name: str, n_t: int = 6, **overrides: Any):
-    """Render the named scene (any group) over ``mixing_map(n_t, c0=...)``; ``overrides`` are
-    render_frames keyword arguments (seed, out_dir, image_size, ...) and may set ``c0``."""
+def unmixing_map(n_t: int, n_layers: int = 15, c0: float = 0.5) -> np.ndarray:
+    """A heavy-share map to render: the heavy layer on top at t = 0, sinking linearly until the last
+    frame is un-mixed the other way up (heavy below c0 H, light above), as a large density ratio
+    leaves a run. (n_t, n_layers), layer 0 at the bottom."""
+    if not 0 < c0 < 1:
+        raise ValueError(f"c0 must be in (0, 1), got {c0!r}")
+    z = (np.arange(n_layers) + 0.5) / n_layers
+    t = np.linspace(0, 1, n_t)[:, None]
+    return np.where(z > 1 - c0, 1.0, 0.0) * (1 - t) + np.where(z < c0, 1.0, 0.0) * t
+
+
+def render_scene(name: str, n_t: int = 6, end: str = "graded", **overrides: Any):
+    """Render the named scene (any group) over ``mixing_map(n_t, c0=...)`` (``end`` "graded") or
+    ``unmixing_map`` ("unmixed"); ``overrides`` are render_frames keyword arguments (seed, out_dir,
+    image_size, ...) and may set ``c0``."""
+    maps = {"graded": mixing_map, "unmixed": unmixing_map}
+    if end not in maps:
+        raise ValueError(f"end: expected one of {sorted(maps)}, got {end!r}")
     for group in (SCENES, MIXTURE_SCENES, APPARATUS_SCENES):
         if name in group:
             look = {**group[name], **overrides}
             c0 = look.pop("c0", 0.5)
-            return render_frames(mixing_map(n_t, c0=c0), **look)
+            return render_frames(maps[end](n_t, c0=c0), **look)
     raise ValueError(f"unknown scene {name!r}; choose from {scene_names()}")
