@@ -584,7 +584,10 @@ def _classify(spheres: list[FrameSpheres | None], exp: Experiment, crops: dict[i
             s.heavy = classify_by_ranges(s.features, exp.colour_ranges)
         return None
     i0 = next(i for i, s in enumerate(spheres) if s is not None)
-    labelled = [(spheres[i0], crops.get(i0))] + ([_last_frame(spheres, crops, i0, exp)] if ends_unmixed else [])
+    try:
+        labelled = [(spheres[i0], crops.get(i0))] + ([_last_frame(spheres, crops, i0)] if ends_unmixed else [])
+    except ValueError as exc:
+        raise ValueError(f"{exp.path.parent}: {exc}") from None
     d = exp.particle_diameter_px
     origin = np.asarray(exp.crop_origin(), dtype=float)
     centres = [np.column_stack([s.x, s.y]) - origin for s, _ in labelled]
@@ -614,8 +617,8 @@ def _classify(spheres: list[FrameSpheres | None], exp: Experiment, crops: dict[i
 END_FRAMES = 3
 
 
-def _last_frame(spheres: list[FrameSpheres | None], crops: dict[int, np.ndarray], i0: int,
-                exp: Experiment) -> tuple[FrameSpheres, np.ndarray]:
+def _last_frame(spheres: list[FrameSpheres | None], crops: dict[int, np.ndarray],
+                i0: int) -> tuple[FrameSpheres, np.ndarray]:
     """The run's last good frame among its last END_FRAMES, and its image."""
     for i in range(len(spheres) - 1, max(i0, len(spheres) - 1 - END_FRAMES), -1):
         if spheres[i] is not None and i in crops:
