@@ -394,8 +394,9 @@ def learn_classes(features: np.ndarray, height: np.ndarray, c0: float, n_layers:
     upside down, so its last frame's spheres come labelled by n_layers less
     their height. With them, every class is seen high and low, so a look
     that changes with height (a lamp above the cell, the plate's motion blur)
-    can no longer pass for the material, and the classes also read each
-    sphere's height (``uses_height``) to take such a change off.
+    can no longer pass for the material, and each sphere's height is
+    offered as one more input to take such a change off, kept where it
+    lowers the cross-validated log-loss (``uses_height``).
     """
     h = np.asarray(height, dtype=float)
     both_ends = labelled_by is not None
