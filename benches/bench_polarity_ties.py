@@ -93,8 +93,9 @@ def _patched(tip_band: int | None) -> Iterator[dict]:
         return _tip(ranked) if band == tip_band and len(ranked) == 2 else ranked
 
     def spy_band_spheres(image, templates, bands):
-        seen["rims"].append(_rims(image, templates, bands))
-        return band_spheres(image, templates, bands)
+        spheres, rims = band_spheres(image, templates, bands)
+        seen["rims"].append({"signs": templates.signs.tolist(), "rim": rims})  # a set's signs, its rims by band
+        return spheres, rims
 
     def spy_packing(spheres, d):
         seen["packing"].append(packing(spheres, d))
@@ -111,12 +112,6 @@ def _patched(tip_band: int | None) -> Iterator[dict]:
     finally:
         detect._contrasts, detect._packing, detect._band_imbalance = contrasts, packing, imbalance
         detect._band_spheres = band_spheres
-
-
-def _rims(image: np.ndarray, templates, bands) -> dict:
-    """A set's signs, and per band and sign the median rim score of the candidates it finds there
-    (``detect._band_rims``)."""
-    return {"signs": templates.signs.tolist(), "rim": detect._band_rims(image, templates, bands)}
 
 
 def _rim_where_differing(rims: list[dict]) -> list[list]:

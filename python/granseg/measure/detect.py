@@ -626,15 +626,14 @@ def _choose_templates(image: np.ndarray, d: float,
     if one is None:  # too few seeds in the whole frame: the bands' own polarities, if they differ
         return next((split for split, guess in zip(splits, guessed, strict=True) if not guess), None)
     sets = [one, *splits, *borrowed]
-    spheres = [_band_spheres(image, t, bands) for t in sets]
+    spheres, rims = zip(*(_band_spheres(image, t, bands) for t in sets), strict=True)
     packing = [_packing(s, d) for s in spheres]
     best = int(np.argmax(packing))
     if best > len(splits) and packing[best] >= PACKED_NN:
         return sets[best]
     imbalance = [_band_imbalance(s, bands) for s in spheres[:len(splits) + 1]]
-    one_rims = _band_rims(image, one, bands)
-    sharper = [_sharper_rims(one_rims, _band_rims(image, split, bands), sign, per_band)
-               for split, per_band in zip(splits, pairs, strict=True)]
+    sharper = [_sharper_rims(rims[0], split, sign, per_band)
+               for split, per_band in zip(rims[1:len(splits) + 1], pairs, strict=True)]
     return sets[_kept(imbalance, packing[:len(splits) + 1], guessed, sharper)]
 
 
@@ -712,32 +711,30 @@ def _borrowed(image: np.ndarray, own: list[Templates], per_band: list[tuple[int,
     return _with_rims(image, join_templates(parts), np.concatenate([c[:, :4] for c in confirmed]))
 
 
-def _band_rims(image: np.ndarray, templates: Templates, bands) -> list[dict[int, float]]:
-    """Per band (rows top, bottom), per sign, the median rim score (:func:`_examine`) of the candidates
-    of that sign ``templates`` find there (a sign with none there is left out)."""
-    found, rim = _examine(_smooth(image, templates.d, templates.signs), image, templates)
-    sign = templates.signs[found[:, 4].astype(int)]
-    medians = []
-    for top, bottom in bands:
-        inside = (found[:, 1] >= top) & (found[:, 1] <= bottom) & np.isfinite(rim)
-        medians.append({int(s): float(np.median(rim[inside & (sign == s)]))
-                        for s in np.unique(templates.signs) if np.any(inside & (sign == s))})
-    return medians
-
-
 def _sharper_rims(one: list[dict[int, float]], split: list[dict[int, float]], sign: int,
                   per_band: list[tuple[int, np.ndarray]]) -> float:
     """How much sharper [log units] the rims of a set of each material's own polarity (``per_band``: each
     band's sign and seeds) are than those of one polarity ``sign``, in the band where its sign differs
-    (``one``, ``split``: :func:`_band_rims` of each); nan where either finds no candidate there."""
+    (``one``, ``split``: each set's rims by band from :func:`_band_spheres`); nan where either finds no candidate there."""
     k = next(k for k, (s, _) in enumerate(per_band) if s != sign)
     return split[k].get(per_band[k][0], np.nan) - one[k].get(sign, np.nan)
 
 
-def _band_spheres(image: np.ndarray, templates: Templates, bands) -> list[np.ndarray]:
-    """Per band (rows top, bottom), the centres (m, 2) of the spheres ``templates`` find in ``image``."""
-    found = detect_particles(image, templates.d, templates)
-    return [found[(found[:, 1] >= top) & (found[:, 1] <= bottom), :2] for top, bottom in bands]
+def _band_spheres(image: np.ndarray, templates: Templates, bands) -> tuple[list[np.ndarray], list[dict[int, float]]]:
+    """Per band (rows top, bottom): the centres (m, 2) of the spheres ``templates`` find in ``image``,
+    and per sign the median rim score (:func:`_examine`) of the candidates of that sign there (a
+    sign with none there left out); from one search."""
+    smooth = _smooth(image, templates.d, templates.signs)
+    found, rim = _examine(smooth, image, templates)
+    sign = templates.signs[found[:, 4].astype(int)]
+    rims = []
+    for top, bottom in bands:
+        inside = (found[:, 1] >= top) & (found[:, 1] <= bottom) & np.isfinite(rim)
+        rims.append({int(s): float(np.median(rim[inside & (sign == s)]))
+                     for s in np.unique(templates.signs) if np.any(inside & (sign == s))})
+    placed = _placed(smooth, found, rim, templates, image.shape)
+    spheres = [placed[(placed[:, 1] >= top) & (placed[:, 1] <= bottom), :2] for top, bottom in bands]
+    return spheres, rims
 
 
 def _band_imbalance(spheres: list[np.ndarray], bands) -> float:
@@ -868,12 +865,19 @@ def detect_particles(image: np.ndarray, particle_diameter_px: float, templates: 
             return np.zeros((0, 6 if details else 4))
     smooth = _smooth(image, d, templates.signs)
     found, rim = _examine(smooth, image, templates)
+    found = _placed(smooth, found, rim, templates, image.shape)
+    return found if details else found[:, :4]
+
+
+def _placed(smooth: dict[int, np.ndarray], found: np.ndarray, rim: np.ndarray, templates: Templates,
+            shape: tuple[int, ...]) -> np.ndarray:
+    """The spheres among a frame's examined candidates (:func:`_examine`'s ``found`` and ``rim``, in
+    an image of ``shape``): those whose rim passes, one per place, centred as their group is."""
     if templates.rim_limits is not None:
         passed = rim >= templates.rim_limits[found[:, 4].astype(int)]
         found = _one_per_place(found[passed], rim[passed], templates)
     found = _y_by_own_symmetry(smooth, found, templates)
-    found = _x_by_nominal_circle(smooth, found[_inside(found, image.shape)], templates)
-    return found if details else found[:, :4]
+    return _x_by_nominal_circle(smooth, found[_inside(found, shape)], templates)
 
 
 def _inside(found: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
