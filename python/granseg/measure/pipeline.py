@@ -599,11 +599,12 @@ def _classify(spheres: list[FrameSpheres | None], exp: Experiment, crops: dict[i
     # gloss at the learned spots is tried only where each fold can fit its own spot weights
     rises = ([np.concatenate([disk_rises(crop, c, d) for (_, crop), c in zip(labelled, centres, strict=True)])]
              if kept and spots is not None else None)
+    heights = np.concatenate(heights)
     try:
-        classes = learn_classes(features, np.concatenate(heights), exp.c0, N_LAYERS, rises=rises,
-                                labelled_by=labelled_by)
+        classes = learn_classes(features, heights, exp.c0, N_LAYERS, rises=rises, labelled_by=labelled_by)
         if kept:  # the labelled spheres also learned as if smeared by motion
-            classes = _smeared_if_blurred(classes, labelled, centres, labelled_by, good, exp, spots, rises)
+            classes = _smeared_if_blurred(classes, labelled, centres, features, heights, labelled_by, good, exp,
+                                          spots, rises)
     except ValueError as exc:
         raise ValueError(f"{exp.path.parent}: {exc}") from None
     for s in good:
@@ -628,12 +629,13 @@ def _last_frame(spheres: list[FrameSpheres | None], crops: dict[int, np.ndarray]
 
 
 def _smeared_if_blurred(sharp: MaterialClasses, labelled: list[tuple[FrameSpheres, np.ndarray]],
-                        centres: list[np.ndarray], labelled_by: np.ndarray | None, good: list[FrameSpheres],
-                        exp: Experiment, spots: np.ndarray | None,
-                        rises: list[np.ndarray] | None) -> MaterialClasses:
+                        centres: list[np.ndarray], features: np.ndarray, heights: np.ndarray,
+                        labelled_by: np.ndarray | None, good: list[FrameSpheres], exp: Experiment,
+                        spots: np.ndarray | None, rises: list[np.ndarray] | None) -> MaterialClasses:
     """The classes learned from the labelled frames' spheres (``labelled``: each frame's spheres and
-    image) and their smeared copies too, if the run shows motion blur for them to undo
-    (classify.blur_test); else ``sharp``, with the test kept."""
+    image; ``centres`` in the image, ``features``, ``heights`` and ``labelled_by`` of them all, as
+    ``sharp`` was learned) and their smeared copies too, if the run shows motion blur for them to
+    undo (classify.blur_test); else ``sharp``, with the test kept."""
     d = exp.particle_diameter_px
     blurred = [smeared_images(crop, d) for _, crop in labelled]  # per frame, one image per smear
 
@@ -644,12 +646,10 @@ def _smeared_if_blurred(sharp: MaterialClasses, labelled: list[tuple[FrameSphere
     augmented = per_smear(lambda image, c: sphere_features(image, c, d, spots))
     if rises is not None:
         rises = rises + per_smear(lambda image, c: disk_rises(image, c, d))
-    smeared = learn_classes(np.concatenate([s.features for s, _ in labelled]),
-                            np.concatenate([height(s.y, exp.window) for s, _ in labelled]), exp.c0, N_LAYERS,
-                            augmented, rises=rises, labelled_by=labelled_by)
-    features = np.concatenate([s.features for s in good])
-    heights = np.concatenate([height(s.y, exp.window) for s in good])
-    test = blur_test(heights, sharp.p_heavy(features, heights) > 0.5, smeared.p_heavy(features, heights) > 0.5)
+    smeared = learn_classes(features, heights, exp.c0, N_LAYERS, augmented, rises=rises, labelled_by=labelled_by)
+    run = np.concatenate([s.features for s in good])
+    at = np.concatenate([height(s.y, exp.window) for s in good])
+    test = blur_test(at, sharp.p_heavy(run, at) > 0.5, smeared.p_heavy(run, at) > 0.5)
     return replace(smeared if test.smeared else sharp, blur=test)
 
 
