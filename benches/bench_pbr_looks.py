@@ -134,8 +134,7 @@ def measure(folder: Path, look: str, seen: list[dict]) -> dict:
         each = packing[1:1 + n_each]
         out["packing"] = {"one": packing[0], "each_its_own": each[0] if n_each == 1 else each,
                           "borrowed": packing[1 + n_each:]}
-        best = int(np.argmax(packing))
-        out["borrowed_kept"] = bool(best > n_each and packing[best] >= detect.PACKED_NN)
+        out["borrowed_kept"] = detect._lent(packing, 1 + n_each) is not None
     kept = [e["kept"] for e in seen if "kept" in e]
     if kept:
         out["spheres_per_row_ratio"] = {"one": ratios[0], "each_its_own": ratios[1] if n_each == 1 else ratios[1:]}
