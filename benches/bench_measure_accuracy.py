@@ -27,6 +27,9 @@ spheres found that are in the wrong class.
     PYTHONPATH=python python benches/bench_measure_accuracy.py --scenes all --seeds 7 8 \
         --json benches/results/measure_accuracy_all.json
 
+``--no-light-field`` leaves the light over the view on the features the
+classes read (the maps before ``classify.LightField``).
+
 ``--smeared always`` keeps the classes learned with smeared copies too
 (what analyze did before the blur test), ``never`` those learned from
 sharp spheres only; each run's line says which the test kept and how many
@@ -132,9 +135,10 @@ def _wall_shift_summary(results: dict) -> str:
 
 
 def _blur_figures(a) -> dict:
-    """Which classes were kept (learned with smeared copies or not) and the blur test's figures."""
+    """Which classes were kept (learned with smeared copies or not), the blur test's figures, and the
+    light over the view (its share of the class gap; its range, where it was taken off)."""
     keys = ("classes_learned_smeared", "blur_disagreements", "blur_disagreements_near_plate", "evidence_against_blur",
-            "gloss_at_learned_spots")
+            "gloss_at_learned_spots", "light_share_of_class_gap", "light_over_view")
     return {k: a.quality.figures.get(k) for k in keys}
 
 
@@ -143,6 +147,13 @@ def force_smeared(choice: str) -> None:
     maps of the previous commit / of classes learned from sharp spheres only); ``auto``: the test."""
     import granseg.measure.classify as classify
     classify.BLUR_EVIDENCE = {"auto": classify.BLUR_EVIDENCE, "always": np.inf, "never": -1.0}[choice]
+
+
+def force_light_field(on: bool) -> None:
+    """Whether the classes take the light over the view off the features (classify.LEVEL_LIGHT;
+    off: the maps before it, 2026-11-29)."""
+    import granseg.measure.classify as classify
+    classify.LEVEL_LIGHT = on
 
 
 def _setting(item: str) -> tuple[str, object]:
@@ -188,9 +199,12 @@ def main() -> None:
                          "up (unmixing_map)")
     ap.add_argument("--ends-unmixed", action="store_true",
                     help="analyse with ends_unmixed: the classes learned from the last frame too")
+    ap.add_argument("--no-light-field", action="store_true",
+                    help="classes from the features as measured, the light over the view left on them")
     ap.add_argument("--json", type=Path, default=None, help="also write the figures here")
     args = ap.parse_args()
     force_smeared(args.smeared)
+    force_light_field(not args.no_light_field)
     overrides = dict(_setting(item) for item in args.set)
     scenes = scene_names() if "all" in args.scenes else args.scenes
     results = {}
@@ -215,7 +229,9 @@ def main() -> None:
                   f"ambiguous {s['ambiguous_spheres'] if s['ambiguous_spheres'] is not None else float('nan'):.4f}; smeared classes "
                   f"{'kept' if s['classes_learned_smeared'] else 'not kept'}, "
                   f"{s['blur_disagreements_near_plate']}/{s['blur_disagreements']} near the plate; gloss "
-                  f"{'at learned spots' if s['gloss_at_learned_spots'] else 'by maxima'}) | bias heavy "
+                  f"{'at learned spots' if s['gloss_at_learned_spots'] else 'by maxima'}; light share "
+                  f"{s['light_share_of_class_gap'] if s['light_share_of_class_gap'] is not None else float('nan'):.2f}"
+                  f"{', taken off' if s['light_over_view'] is not None else ''}) | bias heavy "
                   f"{s['heavy_bias_px']} light {s['light_bias_px']} px, p95 {s['heavy_p95_px']:.2f} "
                   f"{s['light_p95_px']:.2f} px", flush=True)
         pooled = float((np.abs(detected - true) / true).max())

@@ -46,7 +46,7 @@ from granseg.measure import analyze
 from granseg.synth.pbr import load_fixture
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_measure_accuracy import _blur_figures, force_smeared  # noqa: E402
+from bench_measure_accuracy import _blur_figures, force_light_field, force_smeared  # noqa: E402
 
 PBR = Path(__file__).resolve().parents[1] / "tests" / "fixtures" / "pbr"
 
@@ -152,9 +152,12 @@ def main() -> None:
                          "borrowed set (implies --polarities)")
     ap.add_argument("--smeared", choices=("auto", "always", "never"), default="auto",
                     help="keep the classes learned with smeared copies: as the blur test says, always, never")
+    ap.add_argument("--no-light-field", action="store_true",
+                    help="classes from the features as measured, the light over the view left on them")
     ap.add_argument("--json", type=Path, default=None, help="also write the figures here")
     args = ap.parse_args()
     force_smeared(args.smeared)
+    force_light_field(not args.no_light_field)
     looks = args.looks or sorted(p.name for p in args.dir.iterdir() if (p / "truth.npz").is_file())
     args.polarities |= args.choice != "auto"
     seen = _spy_on_learning(args.choice) if args.polarities else []
@@ -171,7 +174,9 @@ def main() -> None:
                 f"{'ok' if r['quality_ok'] else 'flagged: ' + ', '.join(r['failed_checks'])}  smeared classes "
                 f"{'kept' if r['classes_learned_smeared'] else 'not kept'} "
                 f"({r['blur_disagreements_near_plate']}/{r['blur_disagreements']} near the plate), gloss "
-                f"{'at learned spots' if r['gloss_at_learned_spots'] else 'by maxima'}")
+                f"{'at learned spots' if r['gloss_at_learned_spots'] else 'by maxima'}, light share "
+                f"{r['light_share_of_class_gap'] if r['light_share_of_class_gap'] is not None else float('nan'):.2f}"
+                f"{' (taken off)' if r['light_over_view'] is not None else ''}")
         if args.polarities:
             line += f"  | bands {r['band_polarities']}"
             if "packing" in r:

@@ -19,6 +19,7 @@ from granseg.measure.classify import (
     FEATURES,
     LEARNED,
     LEARNED_AT_SPOTS,
+    LIGHT_SHARE,
     RESOLUTION,
     ResolvedScaler,
     _fit_classes,
@@ -84,7 +85,7 @@ def test_identical_materials_are_flagged_not_split(tmp_path, look):
 def test_a_pair_that_differs_in_brightness_only_is_flagged_when_its_classes_are_unsure(tmp_path):
     """Matte greys 21 % apart in brightness, alike in finish: a few per cent of the spheres are
     ambiguous, and some of them in the wrong class, enough to put c_raw off by about the target
-    (2-D tuning seed 7: 1.5 % wrong, RMSD 0.042, 3.5 % ambiguous); ambiguous_spheres flags it. The
+    (2-D tuning seed 7: 1.2 % wrong, RMSD 0.036, 3.6 % ambiguous); ambiguous_spheres flags it. The
     same grey told apart by its finish as well passes."""
     for light, flagged in (("pp-matte-grey", True), ("pp-grey", False)):
         r = render_scene("grey-matte-glossy", 6, seed=7, out_dir=tmp_path / light, heavy="pom-grey", light=light)
@@ -343,12 +344,17 @@ def test_blur_test_keeps_smeared_classes_only_for_disagreements_near_the_plate()
 def test_smeared_classes_are_kept_for_blurred_footage_only(tmp_path, capsys):
     """The plate's motion blur (a 2-D apparatus look) keeps the smear-trained classes; the
     physically based glossy-over-matte footage, with no blur, keeps the sharp ones: trained on
-    smeared copies too, 4 % of its matte spheres were taken for glossy (BENCHMARKS.md)."""
+    smeared copies too, 4 % of its matte spheres were taken for glossy (BENCHMARKS.md). The spheres
+    the two sets of classes call differently crowd near the plate: 11 of 13 there with the light
+    over the view left on; with it taken off (it is, here) the two agree more, 3 of 5 there, where
+    a fifth of the spheres lie."""
     r = render_scene("apparatus-G-POM-50-jpeg", 4, seed=9, out_dir=tmp_path / "blur")
     a = analyze(r.source, smooth=1, save=False, progress=False, workers=2)
     figures = a.quality.figures
     assert figures["classes_learned_smeared"], figures
-    assert figures["blur_disagreements_near_plate"] >= 0.8 * figures["blur_disagreements"] > 0
+    assert figures["blur_disagreements"] > 0
+    crowd = figures["blur_disagreements_near_plate"] / figures["blur_disagreements"]
+    assert crowd >= 0.5 and crowd >= 2.5 * a.classes.blur.share_near_plate, (figures, a.classes.blur)
     pbr = Path(__file__).parent / "fixtures" / "pbr" / "grey-glossy-matte"
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", QualityWarning)
@@ -418,24 +424,89 @@ def test_a_run_that_ends_unmixed_shows_each_class_high_and_low():
         both.p_heavy(later[0])
 
 
-def test_ends_unmixed_learns_from_the_last_frame_where_a_lamp_above_fools_the_first(tmp_path, capsys):
+def test_the_light_over_the_view_is_taken_off_before_the_classes_read_the_features():
+    """A lamp above the cell and vignetting: a sphere is brighter the higher it sits and the nearer
+    the window's middle. In the first frame the heavy spheres all sit high, so classes learned from
+    it alone take the lamp's fall-off for the material and call the heavy spheres of the bottom
+    layers light. Told where each labelled sphere lies, the classes read the light's field off
+    them (the step at the interface is the material, the smooth change within each class the
+    light) and hold everywhere; without the places they cannot be used."""
+    rng = np.random.default_rng(3)
+    m = 120
+    col = {name: i for i, name in enumerate(FEATURES)}
+
+    def frame(heavy: np.ndarray, h: np.ndarray):
+        u = rng.uniform(-1, 1, len(h))
+        light = (1 + 0.03 * h) * (1 - 0.1 * u * u)  # what multiplies the grey levels
+        feats = np.zeros((len(h), len(FEATURES)))
+        feats[:, [col["a"], col["b"]]] = 128.0  # grey
+        feats[:, col["L"]] = (np.where(heavy, 110, 100) + 40.8) * light ** (2.2 / 3) - 40.8 + rng.normal(0, 2, len(h))
+        feats[:, col["specular"]] = 20 * light + rng.normal(0, 1, len(h))  # a faint sheen, as bright as the light
+        return feats, h, u, heavy
+
+    h0 = np.concatenate([rng.uniform(9, 14.5, m // 2), rng.uniform(0.5, 6, m // 2)])
+    first = frame(h0 > 7.5, h0)
+    h1 = rng.uniform(0.5, 14.5, m)
+    later = frame(rng.random(m) < 0.5, h1)  # mixed: each class high and low
+    alone = learn_classes(first[0], first[1], 0.5, 15)
+    assert alone.field is None
+    assert np.mean((alone.p_heavy(later[0], later[1]) > 0.5) != later[3]) > 0.2
+    levelled = learn_classes(first[0], first[1], 0.5, 15, across=first[2])
+    assert levelled.field is not None and not levelled.uses_height
+    assert np.mean((levelled.p_heavy(later[0], later[1], later[2]) > 0.5) != later[3]) < 0.02
+    # the field found is the lamp's and the vignetting's: 1.45 at the top's middle, 0.9 at the
+    # bottom corners
+    assert 1.45 / 0.9 - 0.15 < levelled.field.contrast() < 1.45 / 0.9 + 0.15
+    with pytest.raises(ValueError, match="across"):
+        levelled.p_heavy(later[0], later[1])
+    with pytest.raises(ValueError, match="heights"):
+        levelled.p_heavy(later[0])
+
+
+def test_classes_far_apart_are_left_as_learned_under_a_faint_light_over_the_view():
+    """Where the light moves the classes' score by a small share of the gap between them, the classes
+    hold wherever a sphere lies: they are left as learned (no field), and the share is reported."""
+    rng = np.random.default_rng(4)
+    col = {name: i for i, name in enumerate(FEATURES)}
+    h = np.concatenate([rng.uniform(9, 14.5, 60), rng.uniform(0.5, 6, 60)])
+    u = rng.uniform(-1, 1, 120)
+    feats = np.zeros((120, len(FEATURES)))
+    feats[:, [col["a"], col["b"]]] = 128.0  # grey
+    feats[:, col["L"]] = np.where(h > 7.5, 160, 80) + 0.5 * h + rng.normal(0, 3, 120)
+    classes = learn_classes(feats, h, 0.5, 15, across=u)
+    assert classes.field is None and classes.light_share < LIGHT_SHARE
+    steep = feats.copy()
+    steep[:, col["L"]] += 6.0 * h  # the same pair under a lamp above that brightens the top by 90 levels
+    levelled = learn_classes(steep, h, 0.5, 15, across=u)
+    assert levelled.field is not None and levelled.light_share >= LIGHT_SHARE
+
+
+def test_a_lamp_above_fools_the_first_frame_until_its_light_or_the_last_frame_is_read(tmp_path, capsys,
+                                                                                      monkeypatch):
     """Matte greys a fifth apart in brightness under a lamp above that darkens the bed's bottom by a
-    quarter, in a run that ends un-mixed: learned from the first frame, 6 % of the spheres go to
-    the wrong class (c_raw off by 0.12, 2-D tuning seed 7); with --ends-unmixed the last frame is
-    learned from too, and the map comes within about the target."""
+    quarter, in a run that ends un-mixed. Learned from the first frame's looks alone, 6 % of the
+    spheres go to the wrong class (c_raw off by 0.12, 2-D tuning seed 7): the lamp's fall-off is
+    learned as the material's. Two ways out, each within about the target: the light over the view
+    read off the first frame and taken off (the default), and --ends-unmixed, which learns from the
+    un-mixed last frame too."""
+    import granseg.measure.classify as classify
+
     r = render_scene("grey-matte-glossy", 6, end="unmixed", seed=7, out_dir=tmp_path / "frames",
                      heavy="pom-grey", light="pp-matte-grey", light_from_above=0.25)
     rmsd = {}
-    for flag in ([], ["--ends-unmixed"]):
-        out = tmp_path / f"map{len(flag)}.npz"
+    for name, level, flag in (("looks alone", False, []), ("light taken off", True, []),
+                              ("both ends", True, ["--ends-unmixed"])):
+        monkeypatch.setattr(classify, "LEVEL_LIGHT", level)
+        out = tmp_path / f"{name}.npz"
         main(["analyze", str(r.source), "--smooth", "1", "--out", str(out), "--no-progress", *flag])
         with warnings.catch_warnings():
-            warnings.simplefilter("ignore", QualityWarning)  # the first is flagged: judged here
+            warnings.simplefilter("ignore", QualityWarning)  # the pair is flagged (ambiguous): judged here
             m = load_map(out)
-        rmsd[bool(flag)] = float(np.sqrt(np.nanmean((m.c_raw - r.c_raw) ** 2)))
+        rmsd[name] = float(np.sqrt(np.nanmean((m.c_raw - r.c_raw) ** 2)))
+        assert ("light_over_view" in json.loads(m.quality)["figures"]) == level, name
     said = capsys.readouterr().out
     assert said.count("classes learned from the first frame and from the last") == 1
-    assert rmsd[False] > 0.08 and rmsd[True] < 0.04, rmsd
+    assert rmsd["looks alone"] > 0.08 and rmsd["light taken off"] < 0.045 and rmsd["both ends"] < 0.045, rmsd
     with pytest.raises(ValueError, match="ends_unmixed"):
         analyze(r.source, save=False, progress=False, ends_unmixed="yes")
 

@@ -5,6 +5,10 @@ from __future__ import annotations
 import argparse
 import warnings
 
+# The light over the view, taken off, is said when its best-lit place is this
+# many times as bright as its dimmest or more: a tenth, what the eye sees.
+LIGHT_SAID = 1.1
+
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     """Add the ``analyze`` command."""
@@ -79,6 +83,9 @@ def run(args: argparse.Namespace) -> int:
                 else "learned from sharp spheres only (motion blur ruled out)")
         print(f"classes {kept}: of the {figures['blur_disagreements']} spheres the two sets of classes "
               f"class differently, {figures['blur_disagreements_near_plate']} lie within 3 diameters of the plate")
+    if figures.get("light_over_view", 1.0) >= LIGHT_SAID:  # a lamp above or at the sides, vignetting
+        print(f"uneven light over the view taken off before classifying: the best-lit place "
+              f"{figures['light_over_view']:.2f} times as bright as the dimmest (classify.LightField)")
     if figures.get("classes_learned_from_the_end"):
         print("classes learned from the first frame and from the last (the run ends un-mixed)"
               + (", with each sphere's height" if result.classes.uses_height else ""))

@@ -6,7 +6,7 @@ import numpy as np
 
 from granseg.constants import N_LAYERS
 
-__all__ = ["N_LAYERS", "WALL_CLEARANCE", "clear_of_walls", "height", "in_window", "layer_index", "layer_counts"]
+__all__ = ["N_LAYERS", "WALL_CLEARANCE", "across", "clear_of_walls", "height", "in_window", "layer_index", "layer_counts"]
 
 # A free sphere's centre lies at least half a diameter from the lid and the
 # plate (more between the bumps). The hemispheres fixed to both walls, one
@@ -40,6 +40,12 @@ def height(y: np.ndarray, window: tuple[float, float, float, float], n_layers: i
     """Height of centres y [undistorted px] above the bottom wall (y1), in layer heights (diameters)."""
     _, y0, _, y1 = window
     return (y1 - np.asarray(y, dtype=float)) / ((y1 - y0) / n_layers)
+
+
+def across(x: np.ndarray, window: tuple[float, float, float, float]) -> np.ndarray:
+    """Where centres x [undistorted px] lie across the window: -1 at its left side, 1 at its right."""
+    x0, _, x1, _ = window
+    return (2.0 * np.asarray(x, dtype=float) - (x0 + x1)) / (x1 - x0)
 
 
 def layer_index(y: np.ndarray, window: tuple[float, float, float, float], n_layers: int = N_LAYERS) -> np.ndarray:

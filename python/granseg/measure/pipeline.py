@@ -35,6 +35,7 @@ from granseg.measure.experiment import Experiment, load_experiment
 from granseg.measure.exposure import Exposure, bed_level, survey, survey_indices
 from granseg.measure.layers import (
     N_LAYERS,
+    across,
     clear_of_walls,
     height,
     in_window,
@@ -593,6 +594,7 @@ def _classify(spheres: list[FrameSpheres | None], exp: Experiment, crops: dict[i
     centres = [np.column_stack([s.x, s.y]) - origin for s, _ in labelled]
     features = np.concatenate([s.features for s, _ in labelled])
     heights = [height(s.y, exp.window) for s, _ in labelled]
+    places = np.concatenate([across(s.x, exp.window) for s, _ in labelled])
     # the last frame of a run that ends un-mixed is the first turned upside down
     labelled_by = np.concatenate([heights[0], N_LAYERS - heights[1]]) if ends_unmixed else None
     kept = all(crop is not None for _, crop in labelled)  # the labelled frames' images
@@ -601,14 +603,15 @@ def _classify(spheres: list[FrameSpheres | None], exp: Experiment, crops: dict[i
              if kept and spots is not None else None)
     heights = np.concatenate(heights)
     try:
-        classes = learn_classes(features, heights, exp.c0, N_LAYERS, rises=rises, labelled_by=labelled_by)
+        classes = learn_classes(features, heights, exp.c0, N_LAYERS, rises=rises, labelled_by=labelled_by,
+                                across=places)
         if kept:  # the labelled spheres also learned as if smeared by motion
-            classes = _smeared_if_blurred(classes, labelled, centres, features, heights, labelled_by, good, exp,
-                                          spots, rises)
+            classes = _smeared_if_blurred(classes, labelled, centres, features, heights, places, labelled_by, good,
+                                          exp, spots, rises)
     except ValueError as exc:
         raise ValueError(f"{exp.path.parent}: {exc}") from None
     for s in good:
-        s.p_heavy = classes.p_heavy(s.features, height(s.y, exp.window))
+        s.p_heavy = classes.p_heavy(s.features, height(s.y, exp.window), across(s.x, exp.window))
         s.heavy = s.p_heavy > 0.5
     return classes
 
@@ -630,10 +633,10 @@ def _last_frame(spheres: list[FrameSpheres | None], crops: dict[int, np.ndarray]
 
 def _smeared_if_blurred(sharp: MaterialClasses, labelled: list[tuple[FrameSpheres, np.ndarray]],
                         centres: list[np.ndarray], features: np.ndarray, heights: np.ndarray,
-                        labelled_by: np.ndarray | None, good: list[FrameSpheres], exp: Experiment,
+                        places: np.ndarray, labelled_by: np.ndarray | None, good: list[FrameSpheres], exp: Experiment,
                         spots: np.ndarray | None, rises: list[np.ndarray] | None) -> MaterialClasses:
     """The classes learned from the labelled frames' spheres (``labelled``: each frame's spheres and
-    image; ``centres`` in the image, ``features``, ``heights`` and ``labelled_by`` of them all, as
+    image; ``centres`` in the image, ``features``, ``heights``, ``places`` (across) and ``labelled_by`` of them all, as
     ``sharp`` was learned) and their smeared copies too, if the run shows motion blur for them to
     undo (classify.blur_test); else ``sharp``, with the test kept."""
     d = exp.particle_diameter_px
@@ -646,10 +649,12 @@ def _smeared_if_blurred(sharp: MaterialClasses, labelled: list[tuple[FrameSphere
     augmented = per_smear(lambda image, c: sphere_features(image, c, d, spots))
     if rises is not None:
         rises = rises + per_smear(lambda image, c: disk_rises(image, c, d))
-    smeared = learn_classes(features, heights, exp.c0, N_LAYERS, augmented, rises=rises, labelled_by=labelled_by)
+    smeared = learn_classes(features, heights, exp.c0, N_LAYERS, augmented, rises=rises, labelled_by=labelled_by,
+                            across=places, light_of=sharp)
     run = np.concatenate([s.features for s in good])
     at = np.concatenate([height(s.y, exp.window) for s in good])
-    test = blur_test(at, sharp.p_heavy(run, at) > 0.5, smeared.p_heavy(run, at) > 0.5)
+    where = np.concatenate([across(s.x, exp.window) for s in good])
+    test = blur_test(at, sharp.p_heavy(run, at, where) > 0.5, smeared.p_heavy(run, at, where) > 0.5)
     return replace(smeared if test.smeared else sharp, blur=test)
 
 
@@ -687,6 +692,8 @@ def _assess(result: Analysis, shift: tuple[float, int] = (0.0, 0)) -> Quality:
         vacant=_vacant(good, result.experiment),
         walls=wall_lines(np.r_[first.y, first.wall_y], result.experiment.window),
         learned_from_end=learned and result.classes.both_ends,
+        light_contrast=result.classes.field.contrast() if learned and result.classes.field is not None else None,
+        light_share=result.classes.light_share if learned else None,
     )
 
 

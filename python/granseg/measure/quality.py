@@ -238,7 +238,8 @@ def assess(*, n: np.ndarray, n_heavy: np.ndarray, c0: float, first_heights: np.n
            exposure_matched: bool = False, class_shift: tuple[float, int] = (0.0, 0), blur: Any | None = None,
            placed: dict[str, np.ndarray] | None = None,
            gloss_at_spots: bool | None = None, vacant: tuple[int, int] | None = None,
-           walls: WallLines | None = None, learned_from_end: bool = False) -> Quality:
+           walls: WallLines | None = None, learned_from_end: bool = False,
+           light_contrast: float | None = None, light_share: float | None = None) -> Quality:
     """Run every check on one analysed run.
 
     n, n_heavy: (n_t, n_layers) counts (rows of bad frames all zero);
@@ -273,7 +274,14 @@ def assess(*, n: np.ndarray, n_heavy: np.ndarray, c0: float, first_heights: np.n
     not checked); walls: how far the window's lid and plate lines are off the
     walls (:func:`wall_lines`; None: not checked); learned_from_end: whether the
     classes were also learned from the run's un-mixed last frame (recorded as
-    the figure ``classes_learned_from_the_end``).
+    the figure ``classes_learned_from_the_end``); light_contrast: how many
+    times brighter the light over the view is at its best-lit place than at
+    its dimmest, taken off before the classes read the spheres
+    (classify.LightField; recorded as the figure ``light_over_view``; None:
+    not taken off); light_share: how far
+    that light moved the classes' score over the window before, as a share of
+    the gap between the classes (classify.LIGHT_SHARE; the figure
+    ``light_share_of_class_gap``; None: not read).
     """
     n_t, n_layers = n.shape
     good = n.sum(axis=1) > 0
@@ -299,6 +307,10 @@ def assess(*, n: np.ndarray, n_heavy: np.ndarray, c0: float, first_heights: np.n
         figures["gloss_at_learned_spots"] = bool(gloss_at_spots)
     if learned_from_end:
         figures["classes_learned_from_the_end"] = True
+    if light_contrast is not None:
+        figures["light_over_view"] = float(light_contrast)
+    if light_share is not None:
+        figures["light_share_of_class_gap"] = float(light_share) if np.isfinite(light_share) else None
     for name, flags in (placed or {}).items():
         if len(flags):
             figures[name] = float(np.mean(flags))
