@@ -488,7 +488,8 @@ def test_a_lamp_above_fools_the_first_frame_until_its_light_or_the_last_frame_is
     spheres go to the wrong class (c_raw off by 0.12, 2-D tuning seed 7): the lamp's fall-off is
     learned as the material's. Two ways out, each within about the target: the light over the view
     read off the first frame and taken off (the default), and --ends-unmixed, which learns from the
-    un-mixed last frame too."""
+    un-mixed last frame too and sees each class high and low (the light is then left on: taking it
+    off as well cost on the tuning seeds)."""
     import granseg.measure.classify as classify
 
     r = render_scene("grey-matte-glossy", 6, end="unmixed", seed=7, out_dir=tmp_path / "frames",
@@ -503,10 +504,11 @@ def test_a_lamp_above_fools_the_first_frame_until_its_light_or_the_last_frame_is
             warnings.simplefilter("ignore", QualityWarning)  # the pair is flagged (ambiguous): judged here
             m = load_map(out)
         rmsd[name] = float(np.sqrt(np.nanmean((m.c_raw - r.c_raw) ** 2)))
-        assert ("light_over_view" in json.loads(m.quality)["figures"]) == level, name
+        assert ("light_over_view" in json.loads(m.quality)["figures"]) == (name == "light taken off"), name
     said = capsys.readouterr().out
     assert said.count("classes learned from the first frame and from the last") == 1
-    assert rmsd["looks alone"] > 0.08 and rmsd["light taken off"] < 0.045 and rmsd["both ends"] < 0.045, rmsd
+    # light taken off: 0.040 on this seed (BENCHMARKS.md, "The light over the view taken off")
+    assert rmsd["looks alone"] > 0.08 and rmsd["light taken off"] < 0.045 and rmsd["both ends"] < 0.04, rmsd
     with pytest.raises(ValueError, match="ends_unmixed"):
         analyze(r.source, save=False, progress=False, ends_unmixed="yes")
 

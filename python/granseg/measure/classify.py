@@ -504,7 +504,7 @@ def learn_classes(features: np.ndarray, height: np.ndarray, c0: float, n_layers:
 
     ``across`` (each sphere's place across the window, -1 to 1): the light
     over the view is read and, where it moves the classes by much, taken off
-    (:func:`light_field`, LIGHT_SHARE). ``light_of``: classes learned from the
+    (:func:`light_field`, LIGHT_SHARE), unless both ends label the spheres. ``light_of``: classes learned from the
     same spheres whose light (taken off or not) is used instead of reading it
     again, so that classes learned with and without smeared copies differ in
     nothing else.
@@ -526,7 +526,10 @@ def learn_classes(features: np.ndarray, height: np.ndarray, c0: float, n_layers:
             field, share = light_of.field, light_of.light_share
         else:
             share = _light_share(score, y, a, h, n_layers)
-            field = light_field(raw[0], y, a, h, n_layers) if LEVEL_LIGHT and share >= LIGHT_SHARE else None
+            # classes learned from both ends see each class high and low, with its height offered:
+            # taking the light off as well cost there (BENCHMARKS.md)
+            taken = LEVEL_LIGHT and not both_ends and share >= LIGHT_SHARE
+            field = light_field(raw[0], y, a, h, n_layers) if taken else None
         if field is not None:
             columns, model, accuracy, score = _learned([field.level(v, a, h) for v in raw], y, at, seed, rises)
     return MaterialClasses(model, Separation(accuracy, _height_share(score, y, h), n_heavy, n_light), columns=columns,
