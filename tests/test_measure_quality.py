@@ -344,17 +344,12 @@ def test_blur_test_keeps_smeared_classes_only_for_disagreements_near_the_plate()
 def test_smeared_classes_are_kept_for_blurred_footage_only(tmp_path, capsys):
     """The plate's motion blur (a 2-D apparatus look) keeps the smear-trained classes; the
     physically based glossy-over-matte footage, with no blur, keeps the sharp ones: trained on
-    smeared copies too, 4 % of its matte spheres were taken for glossy (BENCHMARKS.md). The spheres
-    the two sets of classes call differently crowd near the plate: 11 of 13 there with the light
-    over the view left on; with it taken off (it is, here) the two agree more, 3 of 5 there, where
-    a fifth of the spheres lie."""
+    smeared copies too, 4 % of its matte spheres were taken for glossy (BENCHMARKS.md)."""
     r = render_scene("apparatus-G-POM-50-jpeg", 4, seed=9, out_dir=tmp_path / "blur")
     a = analyze(r.source, smooth=1, save=False, progress=False, workers=2)
     figures = a.quality.figures
     assert figures["classes_learned_smeared"], figures
-    assert figures["blur_disagreements"] > 0
-    crowd = figures["blur_disagreements_near_plate"] / figures["blur_disagreements"]
-    assert crowd >= 0.5 and crowd >= 2.5 * a.classes.blur.share_near_plate, (figures, a.classes.blur)
+    assert figures["blur_disagreements_near_plate"] >= 0.8 * figures["blur_disagreements"] > 0
     pbr = Path(__file__).parent / "fixtures" / "pbr" / "grey-glossy-matte"
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", QualityWarning)
