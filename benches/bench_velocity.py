@@ -8,6 +8,7 @@ delta/H = 0.18 and 100 fps; the default seeds here (100 on) were not used for th
 
     RAYON_NUM_THREADS=2 python benches/bench_velocity.py --out benches/results/velocity.json
     python benches/bench_velocity.py --throughput     # 1920 x 1440 frames, frames per second
+    python benches/bench_velocity.py --window-sample 0.18 205 --v1 0.012   # the window's grains against their band
 """
 
 from __future__ import annotations
@@ -72,6 +73,45 @@ def throughput(frames: int) -> None:
           f"{frames / dt:.1f} frames/s")
 
 
+def window_sample(dh: float, seed: int, fps: float, v0: float, v1: float, frames: int) -> None:
+    """Per layer, the true mean speed of the grains the window shows, of every grain of the band
+    (the renderer's, read as it moves them) and the measured one:
+    how much of a bed's error is its window's sample of grains rather than the method."""
+    import granseg.synth.frames as F
+
+    seen = []
+    positions = F._Bed.positions
+
+    def recorded(bed, *a, **kw):
+        x = positions(bed, *a, **kw)
+        seen.append((x.copy(), bed.in_window(x), bed.y.copy(), bed.win, bed.d, bed.length))
+        return x
+
+    F._Bed.positions = recorded
+    try:
+        with tempfile.TemporaryDirectory() as tmp:
+            render_highspeed(Path(tmp) / "r", delta_over_H=dh, fps=fps, n_frames=frames, seed=seed, v0=v0, v1=v1)
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                prof, _ = measure_velocity(Path(tmp) / "r", progress=False)
+    finally:
+        F._Bed.positions = positions
+    x, inside, y = (np.array([p[k] for p in seen]) for k in range(3))
+    win, d, length = seen[0][3:]
+    step = (np.diff(x, axis=0) + length / 2) % length - length / 2  # [px per frame]
+    both = inside[1:] & inside[:-1]
+    # grains settle up and down a little as they make room: a step's layer is its mid-height's
+    layer = np.clip(np.floor((win[3] - 0.5 * (y[1:] + y[:-1])) / d).astype(int), 0, prof.v.size - 1)
+    to_speed = prof.H / prof.v.size / d * fps  # px per frame -> m/s
+    print(f"delta/H {dh}, seed {seed}, {fps:g} fps, v0 {v0}, v1 {v1}: fitted {prof.delta_over_H:.4f} "
+          f"+- {prof.fit.stderr['delta_over_H']:.4f}")
+    print("layer  window's grains  whole band  measured [m/s]")
+    for j in range(prof.v.size):
+        win_v = step[both & (layer == j)].mean() * to_speed
+        band_v = step[layer == j].mean() * to_speed
+        print(f"{j + 1:5d}  {win_v:15.5f}  {band_v:10.5f}  {prof.v[j]:.5f} +- {prof.v_err[j]:.5f}")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--delta-over-H", type=float, nargs="+", default=[0.12, 0.18, 0.24, 0.30])
@@ -80,7 +120,13 @@ def main() -> None:
     ap.add_argument("--frames", type=int, default=60, help="frames per recording")
     ap.add_argument("--out", type=Path, default=None)
     ap.add_argument("--throughput", action="store_true")
+    ap.add_argument("--window-sample", nargs=2, type=float, metavar=("DELTA_OVER_H", "SEED"),
+                    help="one 100 fps recording: the window's grains against their band, per layer")
+    ap.add_argument("--v1", type=float, default=0.0, help="the lid's speed [m/s] for --window-sample")
     args = ap.parse_args()
+    if args.window_sample:
+        window_sample(args.window_sample[0], int(args.window_sample[1]), 100.0, 0.2332, args.v1, args.frames)
+        return
     if args.throughput:
         throughput(args.frames)
         return
