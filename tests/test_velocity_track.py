@@ -34,29 +34,32 @@ def test_unrolling_the_wall_gives_arc_speeds_back():
 
 
 def _within(prof, dh):
+    """(|error| in standard errors, |relative error|, standard error relative to delta/H)."""
     est, se = prof.fit.params["delta_over_H"], prof.fit.stderr["delta_over_H"]
-    return abs(est / dh - 1) <= 0.05 and abs(est - dh) <= 3 * se, abs(est - dh) / se, abs(est / dh - 1)
+    return abs(est - dh) / se, abs(est / dh - 1), se / dh
 
 
 def test_shear_band_recovered_over_seeds_and_frame_rates(tmp_path):
     """Issue 12's target over four beds (delta/H 0.12-0.30, seeds 201-204): delta/H within 3
-    standard errors and 8 % in every one, and within 5 % on average over them. The last bed is
-    filmed at 24, 100 and 1000 fps: the slow camera cannot follow the plate (those layers are
-    left out, with a note), the fastest guides the others' linking, and the joined profile
-    also gives the plate's and the lid's speeds.
+    standard errors and 8 % in every one, within 5 % on average over them, and no stated
+    error above 7 % of delta/H (so an error blown up cannot pass). The last bed is filmed at
+    24, 100 and 1000 fps: the slow camera cannot follow the plate (those layers are left out,
+    with a note), the fastest guides the others' linking, and the joined profile also gives
+    the plate's and the lid's speeds.
 
     Why 5 % on average and not in three beds of four, as this test asked until 2026-11-29:
     a bed's error is mostly the window's sample of grains, not the method. The renderer's
     grains keep their own speeds about their band's for the whole recording, and a creeping
     layer shows the same ten or so all along. In a 100 fps recording like bed 204's (seed
     205, ``benches/bench_velocity.py --window-sample 0.18 205 --v1 0.012``) the window's
-    grains of layers 6-8 move 10-13 % slower than their bands, those of layers 11-14 8-10 %,
-    and the measured speeds follow the window's grains within 2 % from layer 3 up: the fit
-    gives delta/H 0.161 +- 0.005 for 0.18 (a shared deviation over adjacent layers, which
-    the layers' errors, taken as independent, understate). The frames differ between machines (OpenCV picks its kernels by the CPU), so each
-    machine draws other samples: beds 203 and 204 came out 5.5 % and 5.7 % off (2.5 and 2.3
-    standard errors) on an AMD EPYC (AVX2) machine, within 5 % on the previous one; the
-    held-out benchmark's 22 of 24 was measured on the previous one."""
+    grains of layers 6-8 move 10-13 % slower than their bands, and the measured speeds follow
+    the window's grains within 3.4 % from layer 3 up. On this machine 18 of 28 single-camera
+    beds (seeds 1-4 and 100-102, 100 fps) come within 5 %, and the fit's errors, which take
+    neighbouring layers as correlated (``track.LAYER_CORRELATION``), hold the truth within 3
+    in 27 of them (BENCHMARKS.md, "Neighbouring layers' errors"). The frames differ between machines (OpenCV picks its kernels by the CPU),
+    so each machine draws other samples: beds 203 and 204 come out 5.9 % and 5.7 % off on an
+    AMD EPYC (AVX2) machine (1.6 and 1.4 standard errors), within 5 % on the previous one.
+    """
     results = []
     for dh, seed in [(0.12, 201), (0.24, 202), (0.30, 203)]:
         render_highspeed(tmp_path / f"rec{seed}", delta_over_H=dh, fps=100.0, n_frames=60, seed=seed)
@@ -72,8 +75,8 @@ def test_shear_band_recovered_over_seeds_and_frame_rates(tmp_path):
     p, e = prof.fit.params, prof.fit.stderr
     assert abs(p["v1"] - v1) <= 3 * e["v1"] and abs(p["v0"] - v0) <= 3 * e["v0"]
     results.append(_within(prof, dh))
-    assert all(z <= 3 and rel <= 0.08 for _, z, rel in results), results
-    assert np.mean([rel for _, _, rel in results]) <= 0.05, results
+    assert all(z <= 3 and rel <= 0.08 and se <= 0.07 for z, rel, se in results), results
+    assert np.mean([rel for _, rel, _ in results]) <= 0.05, results
     d = prof.to_dict()
     assert {"delta_over_H", "delta_over_H_stderr", "v0", "v1"} <= set(d)
     assert len(d["profile"]["z"]) == len(d["profile"]["v"]) == len(d["profile"]["v_err"]) == 15

@@ -454,15 +454,23 @@ def _finite_weighted(x: Any, y: Any, err: Any, what: str, min_points: int
 
 
 def fit_shear_band(z: Any, v: Any, v_err: Any = None, *, H: float, v1: float | None = None,
-                   max_nfev: int | None = None) -> FitResult:
+                   layer_correlation: float = 0.0, max_nfev: int | None = None) -> FitResult:
     """Fit a velocity profile ``v`` [m/s] at heights ``z`` [m] above the plate with
     :func:`shear_band_velocity`; ``H`` [m] is the bed height delta is scaled by.
 
     Returns ``v0``, ``v1`` [m/s] and ``delta_over_H`` [-] with standard errors and 95 %
     intervals (points weighted by ``v_err`` [m/s], classical errors, t on m - p degrees of
     freedom). ``v1`` given: the lid's speed is held there and only v0 and delta/H are fitted.
+
+    ``layer_correlation`` (phi in [0, 1)): the points' errors are correlated, phi^k between
+    points k spacings apart (the smallest height step), as footage's layers are when the
+    window's grains share a deviation from their bands; the fit is then generalised least
+    squares, its residuals whitened by the Cholesky factor of that correlation.
     """
+    if not 0.0 <= layer_correlation < 1.0:
+        raise ValueError(f"fit_shear_band: layer_correlation = {layer_correlation!r} must lie in [0, 1)")
     x, y, w = _finite_weighted(z, v, v_err, "fit_shear_band", 3 if v1 is None else 2)
+    whiten = _ar1_whitener(x, layer_correlation)
     if not H > 0:
         raise ValueError(f"fit_shear_band: H = {H!r} m: the bed height must be > 0")
     if np.ptp(x) <= 0:
@@ -478,7 +486,7 @@ def fit_shear_band(z: Any, v: Any, v_err: Any = None, *, H: float, v1: float | N
 
     def resid(p: np.ndarray) -> np.ndarray:
         a, b, dh = unpack(p)
-        return w * (shear_band_velocity(x, a, b, dh * H) - y)
+        return whiten(w * (shear_band_velocity(x, a, b, dh * H) - y))
 
     p0 = [v0_start, start_v1, 0.2] if free_v1 else [v0_start, 0.2]
     vmax = 10 * (float(np.abs(y).max()) + span)
@@ -487,6 +495,19 @@ def fit_shear_band(z: Any, v: Any, v_err: Any = None, *, H: float, v1: float | N
     names = ("v0", "v1", "delta_over_H") if free_v1 else ("v0", "delta_over_H")
     res, converged, message = _solve(resid, np.array(p0), (lower, upper), max_nfev)
     return _independent("shear_band", names, res, converged, message, (lower, upper), v_err is not None)
+
+
+def _ar1_whitener(x: np.ndarray, phi: float) -> Callable[[np.ndarray], np.ndarray]:
+    """r -> L^-1 r, with L L^T the correlation phi^(|x_i - x_j| / step) of points at ``x``
+    (step: the smallest spacing); the identity for phi = 0."""
+    if phi <= 0 or x.size < 2:
+        return lambda r: r
+    from scipy.linalg import cholesky, solve_triangular
+
+    gaps = np.diff(np.sort(x))
+    step = float(gaps[gaps > 0].min()) if np.any(gaps > 0) else 1.0
+    lower = cholesky(phi ** (np.abs(x[:, None] - x[None, :]) / step), lower=True)
+    return lambda r: solve_triangular(lower, r, lower=True)
 
 
 def fit_shear_band_law(M_tilde: Any, delta_over_H: Any, delta_over_H_err: Any = None, *,

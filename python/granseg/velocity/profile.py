@@ -9,7 +9,7 @@ v(z) = v1 + (v0 - v1) exp(-z / delta) (:func:`granseg.fit.fit_shear_band`).
 JSON (``to_dict`` / :func:`load_profile`)::
 
     {"delta_over_H": 0.18, "delta_over_H_stderr": 0.004, "v0": 0.233, "v0_stderr": ...,
-     "v1": 0.0, "v1_stderr": ..., "H": 0.09,
+     "v1": 0.0, "v1_stderr": ..., "H": 0.09, "layer_correlation": 0.5,
      "profile": {"z": [...], "v": [...], "v_err": [...], "n": [...]},
      "fit": {...the intervals...}, "conditions": {"name": ..., "M_g": ..., "M_w": ...},
      "sources": [...], "notes": [...the measurement's...], "fit_notes": [...the fit's...]}
@@ -52,13 +52,19 @@ class VelocityProfile:
     conditions: Mapping[str, Any] = field(default_factory=dict)
     sources: Sequence[str] = ()
     notes: Sequence[str] = ()
+    layer_correlation: float = 0.0
 
     @classmethod
-    def fitted(cls, z: Any, v: Any, v_err: Any, H: float, **kw: Any) -> VelocityProfile:
-        """The profile with its fit (layers without a value, NaN, are kept and skipped by the fit)."""
+    def fitted(cls, z: Any, v: Any, v_err: Any, H: float, *, layer_correlation: float = 0.0,
+               **kw: Any) -> VelocityProfile:
+        """The profile with its fit (layers without a value, NaN, are kept and skipped by the fit).
+
+        ``layer_correlation``: the correlation of neighbouring layers' errors the fit assumes
+        (:func:`granseg.fit.fit_shear_band`); 0 for independent layers (a DEM run's bulk)."""
         z, v, v_err = (np.asarray(a, dtype=float).ravel() for a in (z, v, v_err))
         ok = np.isfinite(v) & np.isfinite(v_err)
-        return cls(z, v, v_err, float(H), fit_shear_band(z[ok], v[ok], v_err[ok], H=H), **kw)
+        fit = fit_shear_band(z[ok], v[ok], v_err[ok], H=H, layer_correlation=layer_correlation)
+        return cls(z, v, v_err, float(H), fit, layer_correlation=float(layer_correlation), **kw)
 
     @property
     def delta_over_H(self) -> float:
@@ -88,6 +94,7 @@ class VelocityProfile:
                         **({"n": np.asarray(self.n).tolist()} if self.n is not None else {})},
             "fit": self.fit.uncertainty.to_dict() if self.fit.uncertainty is not None else None,
             "rms_residual_in_errors": float(np.sqrt(self.fit.mse)),
+            "layer_correlation": self.layer_correlation,
             "conditions": dict(self.conditions),
             "sources": list(self.sources),
             "notes": list(self.notes),
@@ -123,7 +130,10 @@ def load_profile(path: str | os.PathLike) -> VelocityProfile:
     H = raw.get("H")
     if not isinstance(H, (int, float)) or not H > 0:
         raise MapFormatError(f"{path}: 'H': the bed height [m] must be a number > 0, got {H!r}")
-    return VelocityProfile.fitted(arrays["z"], arrays["v"], arrays["v_err"], float(H),
+    phi = raw.get("layer_correlation") or 0.0  # files written before it was recorded: independent layers
+    if not isinstance(phi, (int, float)) or not 0 <= phi < 1:
+        raise MapFormatError(f"{path}: 'layer_correlation': must be a number in [0, 1), got {phi!r}")
+    return VelocityProfile.fitted(arrays["z"], arrays["v"], arrays["v_err"], float(H), layer_correlation=float(phi),
                                   n=np.asarray(prof["n"]) if prof.get("n") is not None else None,
                                   conditions=raw.get("conditions") or {}, sources=raw.get("sources") or [],
                                   notes=raw.get("notes") or [])

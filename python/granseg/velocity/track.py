@@ -31,6 +31,10 @@ weights, with the errors scaled up by sqrt(chi^2 / dof) when the recordings disa
 beyond them. A layer moving more than :data:`MAX_STEP` diameters per frame in a
 recording is left out of that recording (its links cannot be trusted); one whose grains
 barely move between frames gets a large error and little weight.
+
+The fit takes neighbouring layers' errors as correlated (:data:`LAYER_CORRELATION`): the
+window shows a few grains per layer, and those of adjacent layers deviate from their bands
+together (a slow cluster spans layers), which errors taken as independent understate.
 """
 
 from __future__ import annotations
@@ -53,7 +57,7 @@ from granseg.measure.sources import open_frames
 from granseg.model import defaults
 from granseg.velocity.profile import VelocityProfile
 
-__all__ = ["BLOCKS", "MAX_STEP", "SEARCH", "Recording", "measure_velocity", "track_recording"]
+__all__ = ["BLOCKS", "LAYER_CORRELATION", "MAX_STEP", "SEARCH", "Recording", "measure_velocity", "track_recording"]
 
 log = logging.getLogger(__name__)
 
@@ -67,6 +71,11 @@ BLOCKS = 8
 MIN_BLOCKS = 3
 #: Bin width of the offset histogram [diameters].
 BIN = 0.02
+#: Correlation of neighbouring layers' errors in the shear-band fit (phi^k at k layers apart).
+#: Measured on the renderer's tuning beds (seeds 1-4, delta/H 0.12-0.30, 100 fps): the layers'
+#: deviations from the truth, in their errors, correlate 0.51 at one layer and 0.26 at two
+#: (BENCHMARKS.md, "Neighbouring layers' errors").
+LAYER_CORRELATION = 0.5
 
 
 @dataclass
@@ -336,6 +345,7 @@ def measure_velocity(recordings: str | os.PathLike | Sequence[str | os.PathLike]
         raise ValueError("measure_velocity: fewer than 3 layers have a speed; record at other frame rates")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
-        prof = VelocityProfile.fitted(z, v, v_err, height_m, n=n, conditions=exp.metadata(),
+        prof = VelocityProfile.fitted(z, v, v_err, height_m, layer_correlation=LAYER_CORRELATION,
+                                      n=n, conditions=exp.metadata(),
                                       sources=[r.source for r in recs], notes=notes)
     return prof, recs
