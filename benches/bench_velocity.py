@@ -7,7 +7,7 @@ fitted delta/H compared with the truth. The method's constants were set on seeds
 delta/H = 0.18 and 100 fps; the default seeds here (100 on) were not used for that.
 
     RAYON_NUM_THREADS=2 python benches/bench_velocity.py --out benches/results/velocity.json
-    python benches/bench_velocity.py --first-seed 1 --seeds 4 --rates "100 fps"   # the tuning beds
+    python benches/bench_velocity.py --first-seed 1 --seeds 4 --rates "100 fps" --phi-grid 0 0.3 0.4 0.5 0.6 0.7
     python benches/bench_velocity.py --throughput     # 1920 x 1440 frames, frames per second
     python benches/bench_velocity.py --window-sample 0.18 205 --v1 0.012   # the window's grains against their band
 """
@@ -48,6 +48,7 @@ def one(dh: float, seed: int, rates: tuple[float, ...], frames: int, root: Path)
             "rel_error": est / dh - 1, "z": (est - dh) / se, "layer_correlation": prof.layer_correlation,
             "independent_layers": {"estimate": est0, "stderr": se0, "rel_error": est0 / dh - 1,
                                    "z": (est0 - dh) / se0},
+            "profile": {"z": prof.z.tolist(), "v": prof.v.tolist(), "v_err": prof.v_err.tolist(), "H": prof.H},
             "v0": prof.fit.params["v0"],
             "layers": int(np.isfinite(prof.v).sum()), "notes": list(prof.notes) + prof.fit_notes,
             "measure_s": seconds, "frames": frames * len(rates)}
@@ -73,6 +74,59 @@ def table(rows: list[dict]) -> str:
                      f"{int(np.sum(abs(z) <= 2))}, rms z {np.sqrt(np.mean(z ** 2)):.2f}, within 5 % "
                      f"{int(np.sum(abs(rel) <= 0.05))}, both {int(np.sum((abs(rel) <= 0.05) & (abs(z) <= 3)))}.")
     return "\n".join(lines)
+
+
+def phi_grid(rows: list[dict], phis: list[float]) -> str:
+    """Each bed's measured profile refitted at every layer correlation phi: the rms of the
+    errors in standard errors, the beds within 3 SE and within 5 %, and how much the stated
+    errors grow against independent layers (how LAYER_CORRELATION was chosen)."""
+    from granseg.fit import fit_shear_band
+
+    def fits(phi):
+        out = []
+        for r in rows:
+            p = r["profile"]
+            z, v, e = (np.asarray(p[k], dtype=float) for k in ("z", "v", "v_err"))
+            ok = np.isfinite(v) & np.isfinite(e)
+            f = fit_shear_band(z[ok], v[ok], e[ok], H=p["H"], layer_correlation=phi)
+            out.append((f.params["delta_over_H"], f.stderr["delta_over_H"], r["delta_over_H"]))
+        return np.array(out)
+
+    base = fits(0.0)
+    lines = [_layer_deviation_correlation(rows), ""]
+    lines += ["| phi | rms z | within 3 SE | within 5 % | stated error / independent layers' |", "|---|---|---|---|---|"]
+    for phi in phis:
+        f = fits(phi)
+        z, rel, grow = (f[:, 0] - f[:, 2]) / f[:, 1], f[:, 0] / f[:, 2] - 1, f[:, 1] / base[:, 1]
+        lines.append(f"| {phi:g} | {np.sqrt(np.mean(z ** 2)):.2f} | {int(np.sum(abs(z) <= 3))} of {len(f)} | "
+                     f"{int(np.sum(abs(rel) <= 0.05))} of {len(f)} | {grow.min():.2f}-{grow.max():.2f} |")
+    return "\n".join(lines)
+
+
+def _layer_deviation_correlation(rows: list[dict]) -> str:
+    """How much neighbouring layers share their deviations: each layer's measured speed less the
+    profile's mean over the layer (the renderer's bands move at exactly that), in its stated
+    error, correlated with the layer k above, pooled over the beds (the plate's two layers left
+    out: their errors are the blur's). The beds are rendered with v1 = 0 and the default v0."""
+    from granseg.model import derived
+
+    v0, dev = derived()["v0"], []
+    for r in rows:
+        p = r["profile"]
+        z, v, e = (np.asarray(p[k], dtype=float) for k in ("z", "v", "v_err"))
+        layer = p["H"] / z.size
+        lo = np.floor(z / layer) * layer
+        L = r["delta_over_H"] * p["H"]
+        truth = v0 * L * (np.exp(-lo / L) - np.exp(-(lo + layer) / L)) / layer
+        dev.append(((v - truth) / e)[2:])
+    dev = np.array(dev)
+    parts = []
+    for k in (1, 2, 3, 4):
+        a, b = dev[:, :-k].ravel(), dev[:, k:].ravel()
+        ok = np.isfinite(a) & np.isfinite(b)
+        parts.append(f"{k} apart {np.corrcoef(a[ok], b[ok])[0, 1]:+.2f}")
+    return (f"Layers' deviations from the truth in their errors (rms {np.sqrt(np.nanmean(dev ** 2)):.2f}), "
+            f"correlation with the layer k above: " + ", ".join(parts))
 
 
 def throughput(frames: int) -> None:
@@ -136,6 +190,10 @@ def main() -> None:
     ap.add_argument("--out", type=Path, default=None)
     ap.add_argument("--rates", nargs="+", choices=list(RATE_SETS), default=list(RATE_SETS),
                     help="which sets of frame rates to film each bed with")
+    ap.add_argument("--phi-grid", type=float, nargs="+", default=None, metavar="PHI",
+                    help="also refit every bed at these layer correlations (how LAYER_CORRELATION was chosen)")
+    ap.add_argument("--tables-from", type=Path, default=None, metavar="JSON",
+                    help="print the tables of an earlier run's --out file instead of measuring")
     ap.add_argument("--throughput", action="store_true")
     ap.add_argument("--window-sample", nargs=2, type=float, metavar=("DELTA_OVER_H", "SEED"),
                     help="one 100 fps recording: the window's grains against their band, per layer")
@@ -146,6 +204,10 @@ def main() -> None:
         return
     if args.throughput:
         throughput(args.frames)
+        return
+    if args.tables_from is not None:  # the tables again from a run's JSON, nothing measured
+        rows = json.loads(args.tables_from.read_text())
+        print(table(rows) + ("\n\n" + phi_grid(rows, args.phi_grid) if args.phi_grid else ""))
         return
     rows = []
     rate_sets = [RATE_SETS[k] for k in args.rates]
@@ -158,6 +220,8 @@ def main() -> None:
             print(f"[{i + 1}/{len(cases)}] " + json.dumps({k: r[k] for k in
                   ("delta_over_H", "seed", "fps", "estimate", "stderr", "rel_error", "z", "layers")}), flush=True)
     md = table(rows)
+    if args.phi_grid:
+        md += "\n\n" + phi_grid(rows, args.phi_grid)
     print(md)
     if args.out is not None:
         args.out.write_text(json.dumps(rows, indent=1))

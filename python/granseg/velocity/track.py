@@ -72,9 +72,10 @@ MIN_BLOCKS = 3
 #: Bin width of the offset histogram [diameters].
 BIN = 0.02
 #: Correlation of neighbouring layers' errors in the shear-band fit (phi^k at k layers apart).
-#: Measured on the renderer's tuning beds (seeds 1-4, delta/H 0.12-0.30, 100 fps): the layers'
-#: deviations from the truth, in their errors, correlate 0.51 at one layer and 0.26 at two
-#: (BENCHMARKS.md, "Neighbouring layers' errors").
+#: Chosen on the renderer's tuning beds (seeds 1-4, delta/H 0.12-0.30, 100 fps), where the
+#: layers' deviations from the truth, in their errors, correlate 0.34 one layer apart and the
+#: fit's errors in its standard errors level off from 0.5 up (BENCHMARKS.md, "Neighbouring
+#: layers' errors").
 LAYER_CORRELATION = 0.5
 
 
