@@ -18,6 +18,10 @@ its own process with one thread, all at once: what processes instead of
 threads would give (the rate after each run's fixed part, summed).
 ``--frame-worker`` also times the per-frame work alone on one thread (frames
 decoded beforehand): the figure a change to the per-frame code moves.
+``--reduce K [K ...]`` times the analysis of the frames reduced K times
+(analyze's ``reduce``; default its own choice) for each K, taking turns:
+
+    PYTHONPATH=python python benches/bench_measure.py --frames 120 --diameter 80 --dir DIR --reduce 1 2 --frame-worker
 
 Shared machines differ from day to day (this bench read 12-14 frames/s one
 day and 20-21 the next on the same tree), so each run also times a fixed
@@ -123,14 +127,15 @@ def _one_process(folder: Path) -> tuple[int, float, float]:
     return len(list(folder.glob("*.jpg"))), took, part.seconds
 
 
-def frame_worker_ms(source: Path, frames: int = 20, rounds: int = 3) -> float:
+def frame_worker_ms(source: Path, frames: int = 20, rounds: int = 3, reduce: int | None = None) -> float:
     """Milliseconds per frame of the frame worker alone (undistort, crop, detect, describe; decoded
     beforehand), one thread, on the first ``frames`` frames: the least of ``rounds`` rounds. What a
     change to the per-frame code moves, without the decoding, the threads and the fixed part."""
     cv2.setNumThreads(1)
     exp = load_experiment(source / "experiment.json")
     images = [cv2.imread(str(p)) for p in sorted(source.glob("*.jpg"))[:frames]]
-    worker = pipeline._FrameWorker(exp, images[0].shape[1::-1])
+    k = pipeline.analysis_reduction(exp.particle_diameter_px) if reduce is None else reduce
+    worker = pipeline._FrameWorker(exp, images[0].shape[1::-1], reduce=k)
     worker.learn(images[0])
     best = np.inf
     for _ in range(rounds):
@@ -194,6 +199,8 @@ def main() -> None:
                     help="also time the frame worker alone on one thread (ms per frame, first 20 frames)")
     ap.add_argument("--split-processes", action="store_true",
                     help="also analyse the frames split in --workers runs, one process of one thread each")
+    ap.add_argument("--reduce", type=int, nargs="+", default=[None], metavar="K",
+                    help="analyse the frames reduced K times (analyze's reduce), each K in turn")
     args = ap.parse_args()
     c = np.zeros((args.frames, 15))
     c[:, 8:] = 1.0
@@ -208,27 +215,30 @@ def main() -> None:
         first = sorted(d.glob("*.jpg"))[0]
         h, w = cv2.imread(str(first)).shape[:2]
         before = yardstick_ms(first, args.workers)
-        elapsed, fixed = np.inf, np.nan
+        best = {k: (np.inf, np.nan, None) for k in args.reduce}  # seconds, fixed part, analysis
         for _ in range(args.repeat):
-            with _FixedPart() as part:
-                start = time.perf_counter()
-                a = analyze(d, save=False, progress=False, workers=args.workers)
-                took = time.perf_counter() - start
-            if took < elapsed:
-                elapsed, fixed = took, part.seconds
+            for k in args.reduce:  # taking turns, so that a busier spell hits each alike
+                with _FixedPart() as part:
+                    start = time.perf_counter()
+                    a = analyze(d, save=False, progress=False, workers=args.workers, reduce=k)
+                    took = time.perf_counter() - start
+                if took < best[k][0]:
+                    best[k] = (took, part.seconds, a)
         after = yardstick_ms(first, args.workers)
         split = split_processes(d, args.workers, Path(tmp)) if args.split_processes else None
-        alone = frame_worker_ms(d) if args.frame_worker else None
-    per = a.n.sum(axis=1).mean()
-    diameter = a.experiment.particle_diameter_px
-    print(f"{args.frames} frames {w}x{h}, D = {diameter:g} px, {per:.0f} spheres/frame in the window, "
-          f"{args.workers} workers: {elapsed:.2f} s, {args.frames / elapsed:.1f} frames/s "
-          f"(survey and learning {fixed:.2f} s, then {(args.frames - 1) / (elapsed - fixed):.1f} frames/s); "
-          f"machine yardstick {before:.0f} ms before, {after:.0f} ms after")
+        alone = {k: frame_worker_ms(d, reduce=k) for k in args.reduce} if args.frame_worker else None
+    for k, (elapsed, fixed, a) in best.items():
+        per = a.n.sum(axis=1).mean()
+        diameter = a.experiment.particle_diameter_px
+        print(f"{args.frames} frames {w}x{h}, D = {diameter:g} px, reduced {a.quality.figures['frames_reduced']} "
+              f"times, {per:.0f} spheres/frame in the window, "
+              f"{args.workers} workers: {elapsed:.2f} s, {args.frames / elapsed:.1f} frames/s "
+              f"(survey and learning {fixed:.2f} s, then {(args.frames - 1) / (elapsed - fixed):.1f} frames/s); "
+              f"machine yardstick {before:.0f} ms before, {after:.0f} ms after")
+        if alone is not None:
+            print(f"  frame worker alone, one thread: {alone[k]:.1f} ms/frame (least of 3 rounds over 20 frames)")
     if split is not None:
         print(split)
-    if alone is not None:
-        print(f"frame worker alone, one thread: {alone:.1f} ms/frame (least of 3 rounds over 20 frames)")
 
 
 if __name__ == "__main__":

@@ -201,6 +201,8 @@ def main() -> None:
                     help="analyse with ends_unmixed: the classes learned from the last frame too")
     ap.add_argument("--no-light-field", action="store_true",
                     help="classes from the features as measured, the light over the view left on them")
+    ap.add_argument("--reduce", type=int, default=None, metavar="K",
+                    help="analyse the frames reduced K times (analyze's reduce; default: its own choice)")
     ap.add_argument("--json", type=Path, default=None, help="also write the figures here")
     args = ap.parse_args()
     force_smeared(args.smeared)
@@ -218,7 +220,7 @@ def main() -> None:
                 with warnings.catch_warnings():
                     warnings.simplefilter("ignore", QualityWarning)  # scored below
                     a = analyze(r.source, smooth=1, save=False, progress=False, workers=2,
-                                ends_unmixed=args.ends_unmixed)
+                                ends_unmixed=args.ends_unmixed, reduce=args.reduce)
             runs[seed] = s = score(r, a)
             detected, true = detected + a.n.sum(axis=0), true + r.n.sum(axis=0)
             print(f"{name:28s} seed {seed:3d}: recall {s['recall']:.3f} precision {s['precision']:.3f} "

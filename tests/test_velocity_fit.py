@@ -66,6 +66,9 @@ def test_errors_shared_by_neighbouring_layers_are_stated_when_said():
     assert np.std(est[0.5]) <= 1.05 * np.std(est[0.0])
     with pytest.raises(ValueError, match="layer_correlation"):
         fit_shear_band(Z, v, err, H=H, layer_correlation=1.0)
+    with pytest.raises(ValueError, match="layer_correlation = 0.5 takes one point per height"):
+        fit_shear_band(np.r_[Z, Z[:2]], np.r_[v, v[:2]], np.r_[err, err[:2]], H=H, layer_correlation=0.5)
+    assert fit_shear_band(np.r_[Z, Z[:2]], np.r_[v, v[:2]], np.r_[err, err[:2]], H=H).converged
 
 
 def test_a_held_lid_speed_is_not_fitted():

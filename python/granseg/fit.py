@@ -470,6 +470,11 @@ def fit_shear_band(z: Any, v: Any, v_err: Any = None, *, H: float, v1: float | N
     if not 0.0 <= layer_correlation < 1.0:
         raise ValueError(f"fit_shear_band: layer_correlation = {layer_correlation!r} must lie in [0, 1)")
     x, y, w = _finite_weighted(z, v, v_err, "fit_shear_band", 3 if v1 is None else 2)
+    if layer_correlation > 0 and np.unique(x).size < x.size:
+        # two points at one height would be fully correlated (phi^0): the correlation is singular
+        raise ValueError(f"fit_shear_band: layer_correlation = {layer_correlation!r} takes one point per "
+                         f"height, but z repeats ({x.size - np.unique(x).size} repeated); fit each height's "
+                         "mean, or give layer_correlation = 0")
     whiten = _ar1_whitener(x, layer_correlation)
     if not H > 0:
         raise ValueError(f"fit_shear_band: H = {H!r} m: the bed height must be > 0")

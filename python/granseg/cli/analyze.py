@@ -39,6 +39,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="the run ends un-mixed (a large density ratio: heavy below c0 H, light above): learn "
                         "the classes from its last frame too, so that a look changing with height is not "
                         "taken for the material")
+    p.add_argument("--reduce", metavar="K", type=int,
+                   help="analyse the frames reduced K times (each pixel the mean of a K x K block; 1 = as they "
+                        "are). Default: the largest K that leaves the spheres at least 40 px across")
     p.add_argument("--strict", action="store_true",
                    help="exit with status 3 when the map fails a quality check (the map is still written)")
     p.add_argument("--workers", metavar="N", type=int, help="parallel workers (default: all cores)")
@@ -61,12 +64,16 @@ def run(args: argparse.Namespace) -> int:
                          preview=args.preview,
                          preview_count=args.preview_count, force=args.force,
                          workers=args.workers, progress=not args.no_progress, detections=args.detections,
-                         ends_unmixed=args.ends_unmixed)
+                         ends_unmixed=args.ends_unmixed, reduce=args.reduce)
     for w in caught:
         print(f"warning: {w.message}")
     good = len(result.frame_names) - len(result.bad_frames)
     print(f"{len(result.frame_names)} frames, {good} analysed, {len(result.bad_frames)} bad frames")
     print(f"spheres per frame in the window: {result.n.sum(axis=1)[result.n.sum(axis=1) > 0].mean():.1f}")
+    reduced = result.quality.figures.get("frames_reduced", 1)
+    if reduced > 1:
+        print(f"analysed in frames reduced {reduced} times (spheres "
+              f"{result.experiment.particle_diameter_px / reduced:.0f} px across; --reduce 1: as they are)")
     wall = result.quality.figures.get("wall_detections_per_frame", 0.0)
     if wall:
         print(f"left out as hemispheres of the lid or plate: {wall:.1f} per frame")

@@ -15,7 +15,7 @@ import numpy as np
 from granseg.errors import CameraWarning, FitError
 
 __all__ = ["CameraWarning", "Undistorter", "calibrate_camera", "check_pattern", "checkerboard_dir",
-           "find_checkerboard"]
+           "find_checkerboard", "reduce_frame"]
 
 log = logging.getLogger(__name__)
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp")
@@ -61,6 +61,16 @@ class Undistorter:
         w, h = self.image_size
         return bool(src.size) and bool(np.all((src[..., 0] >= 0) & (src[..., 0] <= w - 1)
                                               & (src[..., 1] >= 0) & (src[..., 1] <= h - 1)))
+
+
+def reduce_frame(image: np.ndarray, k: int) -> np.ndarray:
+    """``image`` reduced k times: each pixel the mean of a k x k block (rows and columns beyond the
+    last whole block dropped). The frame as a sensor of 1/k the pixels would take it
+    (:meth:`granseg.measure.experiment.Experiment.reduced` is its camera)."""
+    if k == 1:
+        return image
+    h, w = image.shape[:2]
+    return cv2.resize(image[:h - h % k, :w - w % k], (w // k, h // k), interpolation=cv2.INTER_AREA)
 
 
 def find_checkerboard(gray: np.ndarray, pattern: tuple[int, int]) -> np.ndarray | None:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import math
 import os
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -40,6 +40,19 @@ class Experiment(Conditions):
         """The map metadata fields (docs/formats.md) of this experiment."""
         return dict(name=self.name, heavy=self.heavy, light=self.light, rho_h=self.rho_h,
                     rho_l=self.rho_l, c0=self.c0, M_g=self.M_g, M_w=self.M_w)
+
+    def reduced(self, k: int) -> Experiment:
+        """This experiment as seen in its frames reduced k times (each pixel the mean of a k x k
+        block, :func:`reduce_frame`): the same lens and bed on a sensor of 1/k the pixels. A
+        reduced pixel's centre lies at k j + (k - 1) / 2 in the frame's pixels (centres at integers)."""
+        if k == 1:
+            return self
+        shift = 0.5 * (k - 1)
+        camera = self.camera_matrix.astype(float).copy()
+        camera[:2, :2] /= k
+        camera[:2, 2] = (camera[:2, 2] - shift) / k
+        return replace(self, camera_matrix=camera, window=tuple((v - shift) / k for v in self.window),
+                       particle_diameter_px=self.particle_diameter_px / k)
 
     def crop_origin(self) -> tuple[int, int]:
         """Top-left corner [px] of the undistorted crop the frames are analysed in: the window and a diameter."""

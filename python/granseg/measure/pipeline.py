@@ -18,7 +18,7 @@ from tqdm import tqdm
 from granseg._io import atomic_path, check_creatable, check_writable
 from granseg.constants import D_P
 from granseg.maps import moving_average, save_map
-from granseg.measure.camera import Undistorter
+from granseg.measure.camera import Undistorter, reduce_frame
 from granseg.measure.classify import (
     MARGIN,
     MaterialClasses,
@@ -149,6 +149,7 @@ def analyze(
     progress: bool = True,
     detections: str | os.PathLike | None = None,
     ends_unmixed: bool = False,
+    reduce: int | None = None,
 ) -> Analysis:
     """Measure the heavy-concentration map of an experiment from its frames.
 
@@ -178,6 +179,11 @@ def analyze(
         is then seen high and low, so a look that changes with height (a lamp
         above the cell, the plate's motion blur) is not taken for the
         material. A wrong claim shows in ``class_separation``.
+    reduce : analyse the frames reduced this many times (each pixel the mean
+        of a reduce x reduce block; 1 = as they are). Default: the largest
+        whole factor that leaves the spheres REDUCED_DIAMETER_PX or more
+        across (:func:`analysis_reduction`). Centres and radii are returned
+        in the frames' own pixels either way.
 
     Every map gets a quality record (:mod:`granseg.measure.quality`), stored
     in the file as ``quality``; a failed check raises a
@@ -193,8 +199,11 @@ def analyze(
         raise ValueError(f"smooth: expected an odd number of frames >= 1 (1 = none), got {smooth!r}")
     _check_count("workers", workers, 1, allow_none=True)
     _check_count("preview_count", preview_count, 1)
+    _check_count("reduce", reduce, 1, allow_none=True)
     source, exp_path = open_frames(path)
     exp = load_experiment(exp_path)
+    reduce = analysis_reduction(exp.particle_diameter_px) if reduce is None else int(reduce)
+    seen = _reduced_experiment(exp, reduce)
     fps = _frame_rate(exp, source)
     if smooth_seconds is not None:
         smooth = frames_for_seconds(smooth_seconds, fps)
@@ -210,12 +219,14 @@ def analyze(
         keep |= set(range(max(0, len(source) - END_FRAMES), len(source)))
     if preview is not None:
         check_previews(Path(preview), [source.names[i] for i in sorted(keep) if i < len(source.names)], force)
-    spheres, crops, bad, names, spots = _detect_all(source, exp, workers, progress, keep)
-    classes = _classify(spheres, exp, crops, spots, ends_unmixed)
-    shift = _level_classes(spheres, exp)
-    result = _assemble(spheres, exp, fps, smooth, names, bad)
-    result.classes = classes
-    result.quality = _assess(result, shift)
+    spheres, crops, bad, names, spots = _detect_all(source, exp, workers, progress, keep, reduce=reduce)
+    # from here on in the reduced frames' pixels (``seen``), until _in_frame_pixels
+    classes = _classify(spheres, seen, crops, spots, ends_unmixed)
+    shift = _level_classes(spheres, seen)
+    reduced = _assemble(spheres, seen, fps, smooth, names, bad)
+    reduced.classes = classes
+    reduced.quality = _assess(reduced, shift, reduce)
+    result = _in_frame_pixels(reduced, exp, reduce)
     if not result.quality.ok:
         warnings.warn(f"{exp.path.parent}: the map failed its quality checks: "
                       + "; ".join(f"{c.name} {c.value:.3f} (limit {c.rule} {c.limit:.3f})"
@@ -230,8 +241,8 @@ def analyze(
         if preview.exists() and any(preview.iterdir()) and not force:
             log.warning("%s exists; no quality preview written (use --force or --preview DIR)", preview)
             preview = None
-    if preview is not None:
-        result.previews = write_previews(Path(preview), result, crops, force)
+    if preview is not None:  # drawn on the reduced frames, as analysed
+        result.previews = write_previews(Path(preview), reduced, crops, force)
     return result
 
 
@@ -258,8 +269,52 @@ def detect_frames(path: str | os.PathLike, *, workers: int | None = None, progre
     source, exp_path = open_frames(path)
     exp = load_experiment(exp_path)
     fps = _frame_rate(exp, source)
-    spheres, _, bad, names, _ = _detect_all(source, exp, workers, progress, set(), describe=False)
-    return Detected(exp, fps, spheres, names, bad)
+    reduce = analysis_reduction(exp.particle_diameter_px)
+    spheres, _, bad, names, _ = _detect_all(source, exp, workers, progress, set(), describe=False, reduce=reduce)
+    return Detected(exp, fps, [_sphere_pixels(s, reduce) for s in spheres], names, bad)
+
+
+# The detector's lengths in pixels (the rim search's 1.5 px, the smoothing, the
+# 3 x 3 peaks of gloss) and its limits were set on spheres 20-64 px across, and
+# its time grows with the pixels of a sphere: frames of larger spheres are
+# reduced by the largest whole factor that leaves them at least this size.
+# BENCHMARKS.md, "Large spheres analysed in reduced frames".
+REDUCED_DIAMETER_PX = 40.0
+# the smallest sphere experiment.json accepts (measure.experiment._diameter)
+MIN_REDUCED_DIAMETER_PX = 4.0
+
+
+def analysis_reduction(particle_diameter_px: float) -> int:
+    """How many times frames of spheres ``particle_diameter_px`` across are reduced for analysis."""
+    return max(1, int(particle_diameter_px // REDUCED_DIAMETER_PX))
+
+
+def _reduced_experiment(exp: Experiment, reduce: int) -> Experiment:
+    """``exp`` as seen in frames reduced ``reduce`` times; ValueError (naming the argument) if the
+    spheres would come out smaller than the detector can find."""
+    seen = exp.reduced(reduce)
+    if seen.particle_diameter_px < MIN_REDUCED_DIAMETER_PX:
+        raise ValueError(f"reduce (CLI --reduce): {reduce} would leave the spheres "
+                         f"{seen.particle_diameter_px:.1f} px across ({exp.path}: particle_diameter_px "
+                         f"{exp.particle_diameter_px:g}); at least {MIN_REDUCED_DIAMETER_PX:g} px are needed")
+    return seen
+
+
+def _in_frame_pixels(result: Analysis, exp: Experiment, reduce: int) -> Analysis:
+    """``result`` (analysed in frames reduced ``reduce`` times) with its spheres in the frames' own
+    pixels and its experiment as given."""
+    return replace(result, experiment=exp, spheres=[_sphere_pixels(s, reduce) for s in result.spheres])
+
+
+def _sphere_pixels(s: FrameSpheres | None, k: int) -> FrameSpheres | None:
+    """One frame's spheres found in the frame reduced k times, in the frame's own pixels: a reduced
+    pixel's centre lies at k j + (k - 1) / 2 (Experiment.reduced)."""
+    if s is None or k == 1:
+        return s
+    shift = 0.5 * (k - 1)
+    return replace(s, x=k * s.x + shift, y=k * s.y + shift, r=k * s.r, settle=k * s.settle,
+                   beside=k * s.beside + shift, reach=(k * s.reach[0], k * s.reach[1]),
+                   wall_y=k * s.wall_y + shift)
 
 
 def _check_count(name: str, value: Any, least: int, allow_none: bool = False) -> None:
@@ -317,21 +372,27 @@ class _FrameWorker:
     measure each sphere's appearance (classify.FEATURES) and learn where the
     glossy kind shows the lamps, which only telling the kinds apart needs;
     without it (the velocity tracking) ``features`` are (m, 0).
+
+    ``reduce``: frames are reduced that many times first (:func:`analysis_reduction`); then the
+    worker's ``exp`` is the experiment so reduced and everything it returns is in reduced pixels.
+    ``image_size`` is the frames' own.
     """
 
-    def __init__(self, exp: Experiment, image_size: tuple[int, int], describe: bool = True):
+    def __init__(self, exp: Experiment, image_size: tuple[int, int], describe: bool = True, reduce: int = 1):
+        full, exp = exp, exp.reduced(reduce)
         x0, y0, x1, y1 = exp.window
         m = int(np.ceil(exp.particle_diameter_px))
         self.crop = (*exp.crop_origin(), int(np.ceil(x1)) + m, int(np.ceil(y1)) + m)
         self.bed_rows = (int(np.ceil(y0)) - self.crop[1], int(np.floor(y1)) - self.crop[1])  # in the crop
-        self.exp, self.size, self.describe = exp, image_size, describe
-        self.undistort = Undistorter(exp.camera_matrix, exp.dist_coeffs, image_size, self.crop)
+        self.exp, self.size, self.describe, self.reduce = exp, image_size, describe, reduce
+        reduced_size = (image_size[0] // reduce, image_size[1] // reduce)
+        self.undistort = Undistorter(exp.camera_matrix, exp.dist_coeffs, reduced_size, self.crop)
         self.templates: Templates | None = None
         self.spots: np.ndarray | None = None  # where glossy spheres show the lamps (classify.learn_spots)
         self.first: tuple[FrameSpheres, np.ndarray] | None = None  # the first frame's spheres and crop
         self.exposure = Exposure(0.0)  # none matched until surveyed
         if not self.undistort.inside_image(exp.window):
-            raise ValueError(f"{exp.path}: field 'window': {list(exp.window)} is outside the image "
+            raise ValueError(f"{exp.path}: field 'window': {list(full.window)} is outside the image "
                              f"({image_size[0]} x {image_size[1]} px) once undistorted with its "
                              "'camera_matrix' and 'dist_coeffs'")
         self.reach = self._reach()
@@ -350,8 +411,8 @@ class _FrameWorker:
                workers: int = 1) -> None:
         """Survey the run's exposure (measure.exposure): the first frame's bed level and the largest
         gain of a few frames spread over the run, which every frame is then matched to."""
-        reference = bed_level(self.undistort(_bgr(first)), self.bed_rows)
-        levels = (bed_level(self.undistort(_bgr(img)), self.bed_rows)
+        reference = bed_level(self._view(_bgr(first)), self.bed_rows)
+        levels = (bed_level(self._view(_bgr(img)), self.bed_rows)
                   for _, img in source.some(survey_indices(len(source), first_index), workers)
                   if img.shape[:2] == first.shape[:2])  # a frame of another size is reported later
         self.exposure = survey(levels, reference)
@@ -392,10 +453,14 @@ class _FrameWorker:
         crop, glare, gain = self._crop(image)
         return self._spheres(name, crop, glare, gain), crop
 
+    def _view(self, image: np.ndarray) -> np.ndarray:
+        """The frame reduced (``reduce``), undistorted and cropped."""
+        return self.undistort(reduce_frame(image, self.reduce))
+
     def _crop(self, image: np.ndarray) -> tuple[np.ndarray, float, float]:
         """The frame undistorted, cropped, matched to the first frame's exposure and rid of the
         wall's glare; the glare taken off [grey levels] and the exposure gain."""
-        undistorted, gain = self.exposure.match(self.undistort(image), self.bed_rows)
+        undistorted, gain = self.exposure.match(self._view(image), self.bed_rows)
         crop, glare = remove_wall_glare(undistorted, self.exp.particle_diameter_px, self.bed_rows)
         return crop, glare, gain
 
@@ -431,12 +496,14 @@ def _in_thread(source, worker, i: int, image: np.ndarray | None, keep_crop: bool
     return got[0], (got[1] if keep_crop else None)
 
 
-def _detect_all(source, exp, workers, progress, keep, describe=True):
+def _detect_all(source, exp, workers, progress, keep, describe=True, reduce=1):
+    """Every frame's spheres (in the frames reduced ``reduce`` times), the kept frames' crops, the
+    bad frames, the names and the learned spots."""
     n_workers = max(1, workers or os.cpu_count() or 1)
     first_index, first = _first_image(source)
     _warn_if_grey(first, source, first_index)
     try:
-        worker = _FrameWorker(exp, (first.shape[1], first.shape[0]), describe)
+        worker = _FrameWorker(exp, (first.shape[1], first.shape[0]), describe, reduce)
     except ValueError:
         _check_same_size(source, first_index, first)  # a stray first frame, not the window, is to blame
         raise
@@ -675,7 +742,7 @@ def _level_classes(spheres: list[FrameSpheres | None], exp: Experiment) -> tuple
     return shift, pairs
 
 
-def _assess(result: Analysis, shift: tuple[float, int] = (0.0, 0)) -> Quality:
+def _assess(result: Analysis, shift: tuple[float, int] = (0.0, 0), reduce: int = 1) -> Quality:
     good = [s for s in result.spheres if s is not None]
     first = good[0]
     learned = result.classes is not None
@@ -700,6 +767,7 @@ def _assess(result: Analysis, shift: tuple[float, int] = (0.0, 0)) -> Quality:
         learned_from_end=learned and result.classes.both_ends,
         light_contrast=result.classes.field.contrast() if learned and result.classes.field is not None else None,
         light_share=result.classes.light_share if learned else None,
+        frames_reduced=reduce,
     )
 
 

@@ -239,7 +239,8 @@ def assess(*, n: np.ndarray, n_heavy: np.ndarray, c0: float, first_heights: np.n
            placed: dict[str, np.ndarray] | None = None,
            gloss_at_spots: bool | None = None, vacant: tuple[int, int] | None = None,
            walls: WallLines | None = None, learned_from_end: bool = False,
-           light_contrast: float | None = None, light_share: float | None = None) -> Quality:
+           light_contrast: float | None = None, light_share: float | None = None,
+           frames_reduced: int = 1) -> Quality:
     """Run every check on one analysed run.
 
     n, n_heavy: (n_t, n_layers) counts (rows of bad frames all zero);
@@ -281,7 +282,10 @@ def assess(*, n: np.ndarray, n_heavy: np.ndarray, c0: float, first_heights: np.n
     not taken off); light_share: how far
     that light moved the classes' score over the window before, as a share of
     the gap between the classes (classify.LIGHT_SHARE; the figure
-    ``light_share_of_class_gap``; None: not read).
+    ``light_share_of_class_gap``; None: not read); frames_reduced: how many
+    times the frames were reduced for the analysis (the figure
+    ``frames_reduced``): the figures and limits in px are the reduced
+    frames' pixels.
     """
     n_t, n_layers = n.shape
     good = n.sum(axis=1) > 0
@@ -298,6 +302,7 @@ def assess(*, n: np.ndarray, n_heavy: np.ndarray, c0: float, first_heights: np.n
         "exposure_gain_range": [float(exposure_gain[0]), float(exposure_gain[1])],
         "exposure_matched": bool(exposure_matched),
         "class_shift_px": float(class_shift[0]),
+        "frames_reduced": int(frames_reduced),
         "class_shift_pairs": int(class_shift[1]),
         "first_frame": first,
     }
