@@ -858,7 +858,7 @@ def _near(points: np.ndarray, others: np.ndarray, dist: float) -> np.ndarray:
 
 
 def detect_particles(image: np.ndarray, particle_diameter_px: float, templates: Templates | None = None,
-                     details: bool = False) -> np.ndarray:
+                     details: bool = False, smeared_below: float | None = None) -> np.ndarray:
     """Centres and radii of the spheres in ``image``.
 
     Parameters
@@ -869,6 +869,9 @@ def detect_particles(image: np.ndarray, particle_diameter_px: float, templates: 
         ``image`` itself when None); reuse them across the frames of a run.
     details : also return each sphere's template (appearance group) index and
         how far [px] the outline fit's last iteration moved its centre.
+    smeared_below : the row [px] below which spheres may be smeared along x by
+        the plate's motion: there a sphere's rim is also judged by its top and
+        bottom alone (:func:`rim_score`). None: nowhere.
 
     Returns
     -------
@@ -882,7 +885,7 @@ def detect_particles(image: np.ndarray, particle_diameter_px: float, templates: 
         if templates is None:
             return np.zeros((0, 6 if details else 4))
     smooth = _smooth(image, d, templates.signs)
-    found, rim = _examine(smooth, image, templates)
+    found, rim = _examine(smooth, image, templates, smeared_below)
     found = _placed(smooth, found, rim, templates, image.shape)
     return found if details else found[:, :4]
 
@@ -890,9 +893,11 @@ def detect_particles(image: np.ndarray, particle_diameter_px: float, templates: 
 def _placed(smooth: dict[int, np.ndarray], found: np.ndarray, rim: np.ndarray, templates: Templates,
             shape: tuple[int, ...]) -> np.ndarray:
     """The spheres among a frame's examined candidates (:func:`_examine`'s ``found`` and ``rim``, in
-    an image of ``shape``): those whose rim passes, one per place, centred as their group is."""
+    an image of ``shape``): those whose rim passes, one per place, centred as their group is.
+    ``rim`` (m, 2): ranked by its first column, judged by its second."""
+    rim, judged = (rim[:, 0], rim[:, 1]) if rim.ndim == 2 else (rim, rim)
     if templates.rim_limits is not None:
-        passed = rim >= templates.rim_limits[found[:, 4].astype(int)]
+        passed = judged >= templates.rim_limits[found[:, 4].astype(int)]
         found = _one_per_place(found[passed], rim[passed], templates)
     found = _y_by_own_symmetry(smooth, found, templates)
     return _x_by_nominal_circle(smooth, found[_inside(found, shape)], templates)
@@ -954,7 +959,8 @@ def _one_per_place(found: np.ndarray, rim: np.ndarray, templates: Templates) -> 
     return found[np.sort(kept)]
 
 
-def _examine(smooth: dict[int, np.ndarray], image: np.ndarray, templates: Templates) -> tuple[np.ndarray, np.ndarray]:
+def _examine(smooth: dict[int, np.ndarray], image: np.ndarray, templates: Templates,
+             smeared_below: float | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Every candidate sphere of a frame, placed by its outline, and its rim score.
 
     Returns found (m, 6: x, y, radius, correlation, group, the outline fit's
@@ -966,21 +972,51 @@ def _examine(smooth: dict[int, np.ndarray], image: np.ndarray, templates: Templa
     gap between spheres or the free surface (edges of the other sign or at
     other distances), a smaller sphere (its edge well inside the search
     band) or a sphere cut by the image border. A logarithm, because edges
-    scale with the lamps: twice the light, twice the sharpness.
+    scale with the lamps: twice the light, twice the sharpness. Below row
+    ``smeared_below`` the top and bottom alone may also pass a candidate
+    (:func:`rim_score`): then ``rim`` is (m, 2), the score over every ray (which
+    ranks candidates, :func:`_one_per_place`) and the one the rim limits judge.
     """
     found = find_spheres(smooth, image, templates)
     found = np.column_stack([found, np.zeros(len(found))])
     matched = None if templates.by_match is None else found[:, :2].copy()
     rim = np.empty(len(found))
+    judged = np.empty(len(found))
     for mine, outlines in _fit_by_sign(smooth, found, templates):
         found[mine, :2] = outlines.centres
         found[mine, 5] = outlines.step
-        with np.errstate(divide="ignore"):
-            rim[mine] = np.log(np.median(outlines.strength, axis=1))
+        rim[mine] = rim_score(outlines.strength)
+        if smeared_below is not None:
+            judged[mine] = rim_score(outlines.strength, outlines.centres[:, 1] >= smeared_below)
     if matched is not None:  # placed by their template (learn_templates); the rim still judges them
         by_match = templates.by_match[found[:, 4].astype(int)]
         found[by_match, :2] = matched[by_match]
-    return found, rim
+    return found, (rim if smeared_below is None else np.column_stack([rim, judged]))
+
+
+def rim_score(strength: np.ndarray, sideways: np.ndarray | None = None) -> np.ndarray:
+    """The rim score (:func:`_examine`) from the edge sharpness of each sphere's rays (m, k; ray i at
+    angle 2 pi i / k): the logarithm of the median over every ray; for the spheres ``sideways``
+    (bool, (m,); None: none) the median over the rays within 45 degrees of vertical where that
+    is higher.
+
+    The plate's motion blurs the spheres near it along x, which smears the
+    edges of their sides, not of their top and bottom: 80 px steel spheres
+    smeared by half a diameter by the plate scored -0.13 to -0.39 over every
+    ray (their group's limit -0.13, its median 1.8) and 0.5 to 1.4 over the
+    vertical ones, while candidates a diameter off any sphere scored below
+    -0.9 both ways (BENCHMARKS.md, "Smeared spheres by the plate"). Only
+    where the plate can smear: everywhere, one small bead of the real
+    photographs passed as a large one on its top and bottom.
+    """
+    with np.errstate(divide="ignore"):
+        score = np.log(np.median(strength, axis=1))
+        if sideways is None or not np.any(sideways):
+            return score
+        k = strength.shape[1]
+        vertical = np.abs(np.sin(2 * np.pi * np.arange(k) / k)) > np.sqrt(0.5) + 1e-9  # strictly within
+        upright = np.log(np.median(strength[:, vertical], axis=1))
+    return np.where(sideways, np.maximum(score, upright), score)
 
 
 def _rim_limits(rim: np.ndarray, group: np.ndarray, n_groups: int) -> np.ndarray:

@@ -280,6 +280,10 @@ def detect_frames(path: str | os.PathLike, *, workers: int | None = None, progre
 # reduced by the largest whole factor that leaves them at least this size.
 # BENCHMARKS.md, "Large spheres analysed in reduced frames".
 REDUCED_DIAMETER_PX = 40.0
+# How far above the plate [diameters] its motion may smear spheres along x, so that their rims
+# are also judged by their top and bottom (detect.rim_score): the smear falls off over the
+# shear band, a fifth of the bed or so (three of its fifteen layers).
+SMEAR_REACH = 3.0
 # the smallest sphere experiment.json accepts (measure.experiment._diameter)
 MIN_REDUCED_DIAMETER_PX = 4.0
 
@@ -469,7 +473,8 @@ class _FrameWorker:
         """The spheres of one prepared frame; their features if ``describe`` (default: the worker's)."""
         d = self.exp.particle_diameter_px
         describe = self.describe if describe is None else describe
-        found = detect_particles(crop, d, templates=self.templates, details=True)
+        found = detect_particles(crop, d, templates=self.templates, details=True,
+                                 smeared_below=self.bed_rows[1] - SMEAR_REACH * d)
         x, y = found[:, 0] + self.crop[0], found[:, 1] + self.crop[1]
         inside = in_window(x, y, self.exp.window)
         # hemispheres fixed to the lid and the plate sit on the wall line,
