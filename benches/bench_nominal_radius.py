@@ -54,15 +54,15 @@ def placement(mode: str):
     """The detector as it is ("fitted") or with every found sphere re-placed at the nominal radius ("nominal")."""
     examine = detect._examine
     if mode == "nominal":
-        def nominal(smooth, image, templates):
-            found, rim = examine(smooth, image, templates)
+        def nominal(smooth, image, templates, smeared_below=None):
+            found, rim, judged = examine(smooth, image, templates, smeared_below)
             sign = templates.signs[found[:, 4].astype(int)]
             for s in np.unique(sign):
                 mine = sign == s
                 bias = None if templates.ray_bias is None else templates.ray_bias[found[mine, 4].astype(int)]
                 found[mine, :2] = fit_outlines(smooth[int(s)], found[mine, :2], np.full(mine.sum(), templates.d / 2),
                                                templates.d, ray_bias=bias, free_radius=False).centres
-            return found, rim
+            return found, rim, judged
         detect._examine = nominal
     try:
         yield

@@ -743,14 +743,14 @@ def _band_spheres(image: np.ndarray, templates: Templates, bands) -> tuple[list[
     and per sign the median rim score (:func:`_examine`) of the candidates of that sign there (a
     sign with none there left out); from one search."""
     smooth = _smooth(image, templates.d, templates.signs)
-    found, rim = _examine(smooth, image, templates)
+    found, rim, judged = _examine(smooth, image, templates)
     sign = templates.signs[found[:, 4].astype(int)]
     rims = []
     for top, bottom in bands:
         inside = (found[:, 1] >= top) & (found[:, 1] <= bottom) & np.isfinite(rim)
         rims.append({int(s): float(np.median(rim[inside & (sign == s)]))
                      for s in np.unique(templates.signs) if np.any(inside & (sign == s))})
-    placed = _placed(smooth, found, rim, templates, image.shape)
+    placed = _placed(smooth, found, rim, judged, templates, image.shape)
     spheres = [placed[(placed[:, 1] >= top) & (placed[:, 1] <= bottom), :2] for top, bottom in bands]
     return spheres, rims
 
@@ -801,12 +801,12 @@ def _with_rims(image: np.ndarray, templates: Templates, seeds: np.ndarray) -> Te
     (:func:`_ray_bias`), then the limits of "looks like a sphere", from the seeds scored as every
     frame's spheres are (unchanged if fewer than MIN_CONFIRMED)."""
     smooth = _smooth(image, templates.d, templates.signs)
-    found, rim = _examine(smooth, image, templates)
+    found, rim, _ = _examine(smooth, image, templates)
     confirmed = _near(found[:, :2], seeds[:, :2], 0.3 * templates.d)
     if np.isfinite(rim[confirmed]).sum() < MIN_CONFIRMED:
         return templates
     templates = replace(templates, ray_bias=_ray_bias(smooth, templates, found[confirmed]))
-    found, rim = _examine(smooth, image, templates)
+    found, rim, _ = _examine(smooth, image, templates)
     confirmed = _near(found[:, :2], seeds[:, :2], 0.3 * templates.d)
     if np.isfinite(rim[confirmed]).sum() < MIN_CONFIRMED:
         return templates
@@ -871,7 +871,7 @@ def detect_particles(image: np.ndarray, particle_diameter_px: float, templates: 
         how far [px] the outline fit's last iteration moved its centre.
     smeared_below : the row [px] below which spheres may be smeared along x by
         the plate's motion: there a sphere's rim is also judged by its top and
-        bottom alone (:func:`rim_score`). None: nowhere.
+        bottom alone (:func:`rim_scores`). None: nowhere.
 
     Returns
     -------
@@ -885,17 +885,16 @@ def detect_particles(image: np.ndarray, particle_diameter_px: float, templates: 
         if templates is None:
             return np.zeros((0, 6 if details else 4))
     smooth = _smooth(image, d, templates.signs)
-    found, rim = _examine(smooth, image, templates, smeared_below)
-    found = _placed(smooth, found, rim, templates, image.shape)
+    found, rim, judged = _examine(smooth, image, templates, smeared_below)
+    found = _placed(smooth, found, rim, judged, templates, image.shape)
     return found if details else found[:, :4]
 
 
-def _placed(smooth: dict[int, np.ndarray], found: np.ndarray, rim: np.ndarray, templates: Templates,
-            shape: tuple[int, ...]) -> np.ndarray:
-    """The spheres among a frame's examined candidates (:func:`_examine`'s ``found`` and ``rim``, in
-    an image of ``shape``): those whose rim passes, one per place, centred as their group is.
-    ``rim`` (m, 2): ranked by its first column, judged by its second."""
-    rim, judged = (rim[:, 0], rim[:, 1]) if rim.ndim == 2 else (rim, rim)
+def _placed(smooth: dict[int, np.ndarray], found: np.ndarray, rim: np.ndarray, judged: np.ndarray,
+            templates: Templates, shape: tuple[int, ...]) -> np.ndarray:
+    """The spheres among a frame's examined candidates (:func:`_examine`'s ``found``, ``rim`` and
+    ``judged``, in an image of ``shape``): those whose ``judged`` rim passes, one per place (ranked
+    by ``rim``), centred as their group is."""
     if templates.rim_limits is not None:
         passed = judged >= templates.rim_limits[found[:, 4].astype(int)]
         found = _one_per_place(found[passed], rim[passed], templates)
@@ -960,8 +959,8 @@ def _one_per_place(found: np.ndarray, rim: np.ndarray, templates: Templates) -> 
 
 
 def _examine(smooth: dict[int, np.ndarray], image: np.ndarray, templates: Templates,
-             smeared_below: float | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Every candidate sphere of a frame, placed by its outline, and its rim score.
+             smeared_below: float | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Every candidate sphere of a frame, placed by its outline, and its rim score twice over.
 
     Returns found (m, 6: x, y, radius, correlation, group, the outline fit's
     last step [px]) and rim (m,): the
@@ -974,8 +973,9 @@ def _examine(smooth: dict[int, np.ndarray], image: np.ndarray, templates: Templa
     band) or a sphere cut by the image border. A logarithm, because edges
     scale with the lamps: twice the light, twice the sharpness. Below row
     ``smeared_below`` the top and bottom alone may also pass a candidate
-    (:func:`rim_score`): then ``rim`` is (m, 2), the score over every ray (which
-    ranks candidates, :func:`_one_per_place`) and the one the rim limits judge.
+    (:func:`rim_scores`), so the third array, judged (m,), is the score the rim
+    limits judge; ``rim``, over every ray, ranks candidates
+    (:func:`_one_per_place`). Equal to ``rim`` where nothing is smeared.
     """
     found = find_spheres(smooth, image, templates)
     found = np.column_stack([found, np.zeros(len(found))])
@@ -985,20 +985,19 @@ def _examine(smooth: dict[int, np.ndarray], image: np.ndarray, templates: Templa
     for mine, outlines in _fit_by_sign(smooth, found, templates):
         found[mine, :2] = outlines.centres
         found[mine, 5] = outlines.step
-        rim[mine] = rim_score(outlines.strength)
-        if smeared_below is not None:
-            judged[mine] = rim_score(outlines.strength, outlines.centres[:, 1] >= smeared_below)
+        sideways = None if smeared_below is None else outlines.centres[:, 1] >= smeared_below
+        rim[mine], judged[mine] = rim_scores(outlines.strength, sideways)
     if matched is not None:  # placed by their template (learn_templates); the rim still judges them
         by_match = templates.by_match[found[:, 4].astype(int)]
         found[by_match, :2] = matched[by_match]
-    return found, (rim if smeared_below is None else np.column_stack([rim, judged]))
+    return found, rim, judged
 
 
-def rim_score(strength: np.ndarray, sideways: np.ndarray | None = None) -> np.ndarray:
-    """The rim score (:func:`_examine`) from the edge sharpness of each sphere's rays (m, k; ray i at
-    angle 2 pi i / k): the logarithm of the median over every ray; for the spheres ``sideways``
-    (bool, (m,); None: none) the median over the rays within 45 degrees of vertical where that
-    is higher.
+def rim_scores(strength: np.ndarray, sideways: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """The rim scores (:func:`_examine`) from the edge sharpness of each sphere's rays (m, k; ray i
+    at angle 2 pi i / k): the logarithm of the median over every ray, and the score judged: the
+    same, but for the spheres ``sideways`` (bool, (m,); None: none) the median over the rays
+    within 45 degrees of vertical where that is higher.
 
     The plate's motion blurs the spheres near it along x, which smears the
     edges of their sides, not of their top and bottom: 80 px steel spheres
@@ -1012,11 +1011,13 @@ def rim_score(strength: np.ndarray, sideways: np.ndarray | None = None) -> np.nd
     with np.errstate(divide="ignore"):
         score = np.log(np.median(strength, axis=1))
         if sideways is None or not np.any(sideways):
-            return score
+            return score, score
         k = strength.shape[1]
         vertical = np.abs(np.sin(2 * np.pi * np.arange(k) / k)) > np.sqrt(0.5) + 1e-9  # strictly within
-        upright = np.log(np.median(strength[:, vertical], axis=1))
-    return np.where(sideways, np.maximum(score, upright), score)
+        upright = np.log(np.median(strength[sideways][:, vertical], axis=1))
+    judged = score.copy()
+    judged[sideways] = np.maximum(score[sideways], upright)
+    return score, judged
 
 
 def _rim_limits(rim: np.ndarray, group: np.ndarray, n_groups: int) -> np.ndarray:

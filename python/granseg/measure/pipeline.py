@@ -281,7 +281,7 @@ def detect_frames(path: str | os.PathLike, *, workers: int | None = None, progre
 # BENCHMARKS.md, "Large spheres analysed in reduced frames".
 REDUCED_DIAMETER_PX = 40.0
 # How far above the plate [diameters] its motion may smear spheres along x, so that their rims
-# are also judged by their top and bottom (detect.rim_score): the smear falls off over the
+# are also judged by their top and bottom (detect.rim_scores): the smear falls off over the
 # shear band, a fifth of the bed or so (three of its fifteen layers).
 SMEAR_REACH = 3.0
 # the smallest sphere experiment.json accepts (measure.experiment._diameter)
