@@ -160,11 +160,11 @@ def split_processes(source: Path, parts: int, tmp: Path) -> str:
 
 
 class _FixedPart:
-    """Seconds spent in the run's fixed part (the frame worker's survey and learn), timed around them."""
+    """Seconds spent in the run's fixed part (the frame worker's prepare: survey and learning), timed around it."""
 
     def __init__(self) -> None:
         self.seconds = 0.0
-        self._saved = {name: getattr(pipeline._FrameWorker, name) for name in ("survey", "learn")}
+        self._saved = {name: getattr(pipeline._FrameWorker, name) for name in ("prepare",)}
 
     def __enter__(self) -> _FixedPart:
         for name, method in self._saved.items():

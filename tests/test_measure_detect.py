@@ -7,6 +7,8 @@ from dataclasses import replace
 import cv2
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from scipy.spatial import cKDTree
 
 import granseg.measure.outline as outline_module
@@ -40,8 +42,28 @@ from granseg.measure.templates import (
     _masked_correlation,
     _middle_colours,
     find_spheres,
+    keep_apart,
     recentred,
 )
+
+
+@settings(max_examples=60, deadline=None)
+@given(n=st.integers(0, 300), seed=st.integers(0, 2**31), lattice=st.booleans(), part=st.booleans(),
+       distance=st.sampled_from([7.0, 10.0, 14.0, 0.7 * 20]))
+def test_keep_apart_keeps_what_comparing_with_every_kept_point_keeps(n, seed, lattice, part, distance):
+    """The KD-tree's greedy thinning against the loop it replaced, also where points lie exactly
+    ``distance`` apart (a lattice of that step) and when ``order`` leaves points out."""
+    rng = np.random.default_rng(seed)
+    points = rng.uniform(0, 300, (n, 2))
+    if lattice:
+        points = np.round(points / 7.0) * 7.0
+    order = rng.permutation(n)[: n // 2 if part else n]
+    kept: list[int] = []
+    for i in order:
+        if kept and np.hypot(*(points[kept] - points[i]).T).min() < distance:
+            continue
+        kept.append(int(i))
+    assert keep_apart(points, order, distance) == kept
 
 
 def test_masked_correlation_equals_opencv():
@@ -164,8 +186,8 @@ def test_each_material_keeps_its_own_polarity():
     top = centres[:, 1] < middle
     bands = ((0.0, middle - 0.75 * d), (middle + 0.75 * d, float(image.shape[0])))
     recall = {}
-    for name, given in (("one", None), ("bands", bands)):
-        templates = learn_templates(image, d, bands=given)
+    for name, bands_given in (("one", None), ("bands", bands)):
+        templates = learn_templates(image, d, bands=bands_given)
         found = detect_particles(image, d, templates=templates)
         dist, _ = cKDTree(found[:, :2]).query(centres)
         recall[name] = ((dist[top] < 0.3 * d).mean(), (dist[~top] < 0.3 * d).mean())

@@ -13,7 +13,7 @@ import pytest
 from granseg.cli import main
 from granseg.errors import FlaggedMapError, QualityWarning
 from granseg.maps import check_accepted, load_map
-from granseg.measure import analyze
+from granseg.measure import analyze, pipeline
 from granseg.measure.classify import (
     BLUR_ZONE,
     FEATURES,
@@ -31,6 +31,7 @@ from granseg.measure.classify import (
     sphere_features,
     spot_weights,
 )
+from granseg.measure.experiment import load_experiment
 from granseg.measure.exposure import DRIFT_LIMIT
 from granseg.measure.quality import (
     VACANCY_GAP,
@@ -41,6 +42,7 @@ from granseg.measure.quality import (
     vacancies,
     wall_lines,
 )
+from granseg.measure.sources import open_frames
 from granseg.synth import render_frames
 from granseg.synth.scenes import render_scene
 
@@ -655,6 +657,32 @@ def test_cli_says_when_it_took_the_exposure_off(tmp_path, capsys):
     assert "camera exposure changed over the run: 0.6" in out and "to 1.00 times" in out
     assert main(["analyze", str(steady), "--no-progress", "--smooth", "1"]) == 0
     assert "camera exposure" not in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("drift", [0.0, -0.4, 0.4])
+def test_learning_while_the_survey_runs_learns_what_learning_after_it_does(tmp_path, drift):
+    """The run's fixed part does the exposure survey and the learning from the first frame at once
+    (pipeline._FrameWorker.prepare). The first frame is the survey's reference, so the looks learned
+    from it, its spheres and its record are those learned after the survey: steady, darkening
+    (the frames matched, the first left as it is) and brightening (the first clipped too, so learned
+    again)."""
+    r = render_frames(stratified_map(4, 0.5), seed=6, out_dir=tmp_path, exposure_drift=drift, **SMALL)
+    source, json_path = open_frames(r.source)
+    exp = load_experiment(json_path)
+    first = source.read(0)
+    at_once = pipeline._FrameWorker(exp, first.shape[1::-1])
+    at_once.prepare(source, 0, first, workers=2)
+    after = pipeline._FrameWorker(exp, first.shape[1::-1])
+    after.exposure = after.survey(source, 0, first, workers=2)
+    after.learn(first)
+    assert at_once.exposure == after.exposure
+    assert after.exposure.drifting == (abs(drift) > DRIFT_LIMIT) and (after.exposure.clip < 255) == (drift > 0)
+    for a, b in zip(at_once.templates.patches, after.templates.patches, strict=True):
+        assert np.array_equal(a, b)
+    one, other = at_once.first[0], after.first[0]
+    assert np.array_equal(one.x, other.x) and np.array_equal(one.features, other.features)
+    assert (one.gain, one.gain_taken_off) == (other.gain, other.gain_taken_off)
+    assert np.array_equal(at_once.spots, after.spots) and np.array_equal(at_once.first[1], after.first[1])
 
 
 @pytest.mark.parametrize("scene, seed, drift", [

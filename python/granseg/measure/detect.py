@@ -67,6 +67,7 @@ from granseg.measure.templates import (
     cut_patches,
     find_spheres,
     join_templates,
+    keep_apart,
     recentred,
     with_columns,
 )
@@ -950,12 +951,7 @@ def _one_per_place(found: np.ndarray, rim: np.ndarray, templates: Templates) -> 
     median = np.array([np.median(score[group == g]) if (group == g).any() else 1.0
                        for g in range(len(templates.patches))])
     key = score - median[group] if by_rim else score / median[group]
-    kept: list[int] = []
-    for i in np.argsort(-key, kind="stable"):
-        if kept and np.hypot(*(found[kept, :2] - found[i, :2]).T).min() < 0.7 * templates.d:
-            continue
-        kept.append(i)
-    return found[np.sort(kept)]
+    return found[np.sort(keep_apart(found[:, :2], np.argsort(-key, kind="stable"), 0.7 * templates.d))]
 
 
 def _examine(smooth: dict[int, np.ndarray], image: np.ndarray, templates: Templates,
@@ -1092,15 +1088,7 @@ def _select(circles: np.ndarray, d: float) -> np.ndarray:
     if circles.size == 0:
         return np.zeros((0, 4))
     quality = circles[:, 3] * circles[:, 4]
-    order = np.argsort(-quality)
-    kept: list[int] = []
-    for i in order:
-        if kept:
-            dist = np.hypot(*(circles[kept, :2] - circles[i, :2]).T)
-            if dist.min() < 0.7 * d:
-                continue
-        kept.append(i)
-    out = circles[kept]
+    out = circles[keep_apart(circles[:, :2], np.argsort(-quality), 0.7 * d)]
     weak = out[:, 3] * out[:, 4] < 0.25 * np.median(out[:, 3] * out[:, 4])
     out = out[~weak]
     # One size: a bed may hold spheres of another size too (4 mm beads among

@@ -411,15 +411,37 @@ class _FrameWorker:
         return (left if left > 0 and self.undistort.inside_image((self.crop[0], y0, x0, y1)) else 0.0,
                 right if right > 0 and self.undistort.inside_image((x1, y0, self.crop[2], y1)) else 0.0)
 
+    def prepare(self, source: FrameDirectory | VideoFrames, first_index: int, first: np.ndarray,
+                workers: int = 1) -> None:
+        """The run's fixed part: the exposure survey (:meth:`survey`) and the learning from the
+        first frame (:meth:`learn`), at once.
+
+        Learning is one thread's work for a second or so and the survey
+        mostly decoding, so the two share the cores (the survey with one
+        decoding thread fewer). The first frame is the survey's reference:
+        matched to it, it stays as it is, so it is learned from unmatched
+        while the survey runs, and learned again only if the survey finds
+        frames brighter than it, to whose clip it is cut as well.
+        """
+        with ThreadPoolExecutor(1) as pool:
+            surveyed = pool.submit(self.survey, source, first_index, first, max(1, workers - 1))
+            self.learn(first)  # under Exposure(0.0): no frame matched yet
+            exposure = surveyed.result()
+        self.exposure = exposure
+        if exposure.clip < 255:
+            self.learn(first)
+        elif self.first is not None:
+            self.first[0].gain_taken_off = exposure.drifting
+
     def survey(self, source: FrameDirectory | VideoFrames, first_index: int, first: np.ndarray,
-               workers: int = 1) -> None:
-        """Survey the run's exposure (measure.exposure): the first frame's bed level and the largest
-        gain of a few frames spread over the run, which every frame is then matched to."""
+               workers: int = 1) -> Exposure:
+        """The run's exposure (measure.exposure): the first frame's bed level and the largest gain
+        of a few frames spread over the run, which every frame is then matched to."""
         reference = bed_level(self._view(_bgr(first)), self.bed_rows)
         levels = (bed_level(self._view(_bgr(img)), self.bed_rows)
                   for _, img in source.some(survey_indices(len(source), first_index), workers)
                   if img.shape[:2] == first.shape[:2])  # a frame of another size is reported later
-        self.exposure = survey(levels, reference)
+        return survey(levels, reference)
 
     def learn(self, image: np.ndarray) -> None:
         """Learn the spheres' appearances from the first frame (kept None if it shows too few
@@ -512,8 +534,7 @@ def _detect_all(source, exp, workers, progress, keep, describe=True, reduce=1):
     except ValueError:
         _check_same_size(source, first_index, first)  # a stray first frame, not the window, is to blame
         raise
-    worker.survey(source, first_index, first, n_workers)
-    worker.learn(first)
+    worker.prepare(source, first_index, first, n_workers)
     results: dict[int, Any] = {}
     crops: dict[int, np.ndarray] = {}
     n_workers = min(n_workers, len(source))
