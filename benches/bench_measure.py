@@ -47,6 +47,7 @@ import numpy as np
 
 from granseg.measure import analyze, pipeline
 from granseg.measure.experiment import load_experiment
+from granseg.measure.sources import read_image
 from granseg.synth import render_frames
 
 
@@ -133,9 +134,10 @@ def frame_worker_ms(source: Path, frames: int = 20, rounds: int = 3, reduce: int
     change to the per-frame code moves, without the decoding, the threads and the fixed part."""
     cv2.setNumThreads(1)
     exp = load_experiment(source / "experiment.json")
-    images = [cv2.imread(str(p)) for p in sorted(source.glob("*.jpg"))[:frames]]
+    files = sorted(source.glob("*.jpg"))[:frames]
     k = pipeline.analysis_reduction(exp.particle_diameter_px) if reduce is None else reduce
-    worker = pipeline._FrameWorker(exp, images[0].shape[1::-1], reduce=k)
+    images = [read_image(p, k) for p in files]  # as analyze decodes them: at the size analysed
+    worker = pipeline._FrameWorker(exp, cv2.imread(str(files[0])).shape[1::-1], reduce=k)
     worker.learn(images[0])
     best = np.inf
     for _ in range(rounds):

@@ -18,6 +18,7 @@ from granseg.measure.camera import reduce_frame
 from granseg.measure.detect import rim_scores
 from granseg.measure.experiment import load_experiment
 from granseg.measure.pipeline import analysis_reduction
+from granseg.measure.sources import BadFrame, jpeg_size, read_image
 from granseg.synth import render_frames
 from granseg.synth.scenes import render_scene
 
@@ -62,6 +63,46 @@ def test_the_reduced_camera_sees_what_the_reduced_frame_shows(tmp_path, k):
     np.testing.assert_allclose(k * at[1] + 0.5 * (k - 1), at[0], atol=1e-9)
     assert seen.particle_diameter_px == pytest.approx(60 / k)
     np.testing.assert_allclose(k * np.array(seen.window) + 0.5 * (k - 1), exp.window)
+
+
+@pytest.mark.parametrize("k", [2, 4, 8])
+@pytest.mark.parametrize("size", [(1920, 1440), (301, 203)])
+def test_a_jpeg_reduced_is_decoded_at_that_size_as_its_blocks_mean(tmp_path, k, size):
+    """libjpeg's scaled decoding gives what the frame decoded whole and reduced gives: the same size
+    (the whole blocks; libjpeg rounds up), the same place (a dark disk's centroid within 0.01 of a
+    reduced pixel) and each block's mean to within a grey level or two."""
+    rng = np.random.default_rng(k)
+    yy, xx = np.mgrid[0:size[1], 0:size[0]].astype(float)
+    image = np.clip(150 + 40 * np.sin(xx / 23.0) * np.cos(yy / 17.0) + rng.normal(0, 6, xx.shape), 0, 255)
+    image[np.hypot(xx - 0.41 * size[0], yy - 0.53 * size[1]) < 0.1 * size[1]] = 20
+    image = np.repeat(image.astype(np.uint8)[..., None], 3, axis=2)
+    path = tmp_path / "f.jpg"
+    assert cv2.imwrite(str(path), image, [cv2.IMWRITE_JPEG_QUALITY, 90])
+    assert jpeg_size(path.read_bytes()) == size
+    fast, whole = read_image(path, k), reduce_frame(read_image(path), k)
+    assert fast.shape == whole.shape == (size[1] // k, size[0] // k, 3)
+    diff = np.abs(fast.astype(float) - whole.astype(float))
+    assert diff.mean() < 0.5 and np.percentile(diff, 99) <= 2  # 0.06-0.15 and 1 measured
+
+    def dark_centroid(frame):
+        dark = np.clip(80.0 - frame[..., 0], 0.0, None)  # the disk (20) against a background of 110-190
+        j, i = np.mgrid[0:frame.shape[0], 0:frame.shape[1]]
+        return np.array([(dark * i).sum(), (dark * j).sum()]) / dark.sum()
+
+    np.testing.assert_allclose(dark_centroid(fast), dark_centroid(whole), atol=0.01)  # 0.002 measured
+
+
+def test_a_frame_of_another_size_is_named_when_read_reduced(tmp_path):
+    """A frame one pixel narrower decodes, reduced twice, to the first frame's reduced size; its own
+    size is still checked, read from its header."""
+    image = np.full((200, 301, 3), 128, np.uint8)
+    cv2.imwrite(str(tmp_path / "a.jpg"), image)
+    cv2.imwrite(str(tmp_path / "b.jpg"), image[:, :300])
+    assert read_image(tmp_path / "a.jpg", 2, (301, 200)).shape == (100, 150, 3)
+    assert read_image(tmp_path / "b.jpg", 2).shape == (100, 150, 3)
+    with pytest.raises(BadFrame, match=r"b.jpg: size 300 x 200 differs from the first frame's 301 x 200"):
+        read_image(tmp_path / "b.jpg", 2, (301, 200))
+    assert jpeg_size(b"\x89PNG\r\n\x1a\n" + bytes(40)) is None and jpeg_size(b"\xff\xd8\xff") is None
 
 
 def _errors(result, truth) -> np.ndarray:

@@ -45,7 +45,7 @@ from granseg.measure.layers import (
 from granseg.measure.outline import class_shift
 from granseg.measure.preview import check_previews, write_previews
 from granseg.measure.quality import Quality, QualityWarning, assess, vacancies, wall_lines
-from granseg.measure.sources import BadFrame, FrameDirectory, VideoFrames, open_frames
+from granseg.measure.sources import BadFrame, FrameDirectory, VideoFrames, check_size, open_frames
 from granseg.measure.wall import remove_wall_glare
 
 __all__ = ["Analysis", "BadFrameWarning", "GreyFramesWarning", "Detected", "FrameSpheres", "analyze", "detect_frames", "write_detections"]
@@ -377,9 +377,9 @@ class _FrameWorker:
     glossy kind shows the lamps, which only telling the kinds apart needs;
     without it (the velocity tracking) ``features`` are (m, 0).
 
-    ``reduce``: frames are reduced that many times first (:func:`analysis_reduction`); then the
-    worker's ``exp`` is the experiment so reduced and everything it returns is in reduced pixels.
-    ``image_size`` is the frames' own.
+    ``reduce``: frames are analysed reduced that many times (:func:`analysis_reduction`): every
+    frame the worker is given is so reduced (:func:`_seen`), its ``exp`` is the experiment so
+    reduced and everything it returns is in reduced pixels. ``image_size`` is the frames' own.
     """
 
     def __init__(self, exp: Experiment, image_size: tuple[int, int], describe: bool = True, reduce: int = 1):
@@ -437,10 +437,10 @@ class _FrameWorker:
                workers: int = 1) -> Exposure:
         """The run's exposure (measure.exposure): the first frame's bed level and the largest gain
         of a few frames spread over the run, which every frame is then matched to."""
-        reference = bed_level(self._view(_bgr(first)), self.bed_rows)
-        levels = (bed_level(self._view(_bgr(img)), self.bed_rows)
-                  for _, img in source.some(survey_indices(len(source), first_index), workers)
-                  if img.shape[:2] == first.shape[:2])  # a frame of another size is reported later
+        reference = bed_level(self.undistort(_bgr(first)), self.bed_rows)
+        # a frame of another size is left out here and reported when it is analysed
+        levels = (bed_level(self.undistort(_bgr(img)), self.bed_rows)
+                  for _, img in source.some(survey_indices(len(source), first_index), workers, self.reduce, self.size))
         return survey(levels, reference)
 
     def learn(self, image: np.ndarray) -> None:
@@ -473,20 +473,14 @@ class _FrameWorker:
         return tuple((a - self.crop[1], b - self.crop[1]) for a, b in (top, bottom))
 
     def __call__(self, name: str, image: np.ndarray) -> tuple[FrameSpheres, np.ndarray]:
-        if (image.shape[1], image.shape[0]) != self.size:
-            raise BadFrame(f"{name}: size {image.shape[1]} x {image.shape[0]} differs from the first frame's "
-                           f"{self.size[0]} x {self.size[1]}")
+        """The spheres of frame ``name`` (``image`` reduced ``reduce`` times) and its crop."""
         crop, glare, gain = self._crop(image)
         return self._spheres(name, crop, glare, gain), crop
-
-    def _view(self, image: np.ndarray) -> np.ndarray:
-        """The frame reduced (``reduce``), undistorted and cropped."""
-        return self.undistort(reduce_frame(image, self.reduce))
 
     def _crop(self, image: np.ndarray) -> tuple[np.ndarray, float, float]:
         """The frame undistorted, cropped, matched to the first frame's exposure and rid of the
         wall's glare; the glare taken off [grey levels] and the exposure gain."""
-        undistorted, gain = self.exposure.match(self._view(image), self.bed_rows)
+        undistorted, gain = self.exposure.match(self.undistort(image), self.bed_rows)
         crop, glare = remove_wall_glare(undistorted, self.exp.particle_diameter_px, self.bed_rows)
         return crop, glare, gain
 
@@ -516,6 +510,16 @@ class _FrameWorker:
                             wall_y=y[inside & ~clear])
 
 
+def _seen(source, worker: _FrameWorker, i: int, image: np.ndarray | None) -> np.ndarray:
+    """Frame ``i`` as ``worker`` analyses it: reduced ``worker.reduce`` times, after its own size is
+    checked against the first frame's. ``image``: the frame decoded (a video's), or None to read
+    it from a directory, whose JPEG frames are then decoded at the reduced size (read_image)."""
+    if image is None:
+        return _bgr(source.read(i, worker.reduce, worker.size))
+    check_size(source.names[i] if i < len(source.names) else f"frame {i}", image.shape[1::-1], worker.size)
+    return reduce_frame(_bgr(image), worker.reduce)
+
+
 def _in_thread(source, worker, i: int, image: np.ndarray | None, keep_crop: bool):
     got = _one_frame(source, worker, i, image)
     if isinstance(got, BadFrame):
@@ -534,7 +538,9 @@ def _detect_all(source, exp, workers, progress, keep, describe=True, reduce=1):
     except ValueError:
         _check_same_size(source, first_index, first)  # a stray first frame, not the window, is to blame
         raise
-    worker.prepare(source, first_index, first, n_workers)
+    # a directory's first frame decoded again as its others will be, at the reduced size
+    again = isinstance(source, FrameDirectory) and reduce > 1
+    worker.prepare(source, first_index, _seen(source, worker, first_index, None if again else first), n_workers)
     results: dict[int, Any] = {}
     crops: dict[int, np.ndarray] = {}
     n_workers = min(n_workers, len(source))
@@ -636,8 +642,7 @@ def _bgr(image: np.ndarray) -> np.ndarray:
 def _one_frame(source, worker, i, image):
     name = source.names[i] if i < len(source.names) else f"frame {i}"
     try:
-        img = source.read(i) if image is None else image
-        return worker(name, _bgr(img))
+        return worker(name, _seen(source, worker, i, image))
     except BadFrame as exc:
         return exc
 

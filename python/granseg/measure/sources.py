@@ -12,6 +12,7 @@ import numpy as np
 
 from granseg._io import cv2_path
 from granseg.errors import BadFrame
+from granseg.measure.camera import reduce_frame
 
 __all__ = ["BadFrame", "FrameDirectory", "VideoFrames", "open_frames", "IMAGE_SUFFIXES"]
 
@@ -35,17 +36,20 @@ class FrameDirectory:
     def __len__(self) -> int:
         return len(self.files)
 
-    def read(self, i: int) -> np.ndarray:
-        """Frame ``i`` as BGR uint8; BadFrame says what is wrong with its file."""
-        return read_image(self.files[i])
+    def read(self, i: int, reduce: int = 1, size: tuple[int, int] | None = None) -> np.ndarray:
+        """Frame ``i`` as BGR uint8, reduced ``reduce`` times (:func:`read_image`); BadFrame says what is
+        wrong with its file, also when its own size (width, height) is not ``size``."""
+        return read_image(self.files[i], reduce, size)
 
     def frames(self) -> Iterator[tuple[int, np.ndarray | None | BadFrame]]:
         """Frame indices; images are read by the workers (None here)."""
         for i in range(len(self.files)):
             yield i, None
 
-    def some(self, indices: set[int], workers: int = 1) -> Iterator[tuple[int, np.ndarray]]:
-        """The readable frames among ``indices``, in order (unreadable ones left out).
+    def some(self, indices: set[int], workers: int = 1, reduce: int = 1,
+             size: tuple[int, int] | None = None) -> Iterator[tuple[int, np.ndarray]]:
+        """The readable frames among ``indices``, in order, reduced ``reduce`` times (unreadable ones
+        and those whose size is not ``size`` left out).
 
         Decoded ``workers`` at a time in threads (the exposure survey reads
         24 frames before the analysis starts: 0.4 s of a 30-frame run at
@@ -56,19 +60,33 @@ class FrameDirectory:
         with ThreadPoolExecutor(threads) as pool:
             for start in range(0, len(order), threads):
                 chunk = order[start:start + threads]
-                for i, image in zip(chunk, pool.map(self._readable, chunk), strict=True):
+                for i, image in zip(chunk, pool.map(lambda j: self._readable(j, reduce, size), chunk), strict=True):
                     if image is not None:
                         yield i, image
 
-    def _readable(self, i: int) -> np.ndarray | None:
+    def _readable(self, i: int, reduce: int, size: tuple[int, int] | None) -> np.ndarray | None:
         try:
-            return self.read(i)
+            return self.read(i, reduce, size)
         except BadFrame:
             return None
 
 
-def read_image(path: Path) -> np.ndarray:
-    """Decode one PNG/JPEG file strictly: an empty or truncated file is a BadFrame."""
+# JPEG decoded at a half, a quarter or an eighth of its size by libjpeg (its scaled inverse DCT)
+_REDUCED_READ = {2: cv2.IMREAD_REDUCED_COLOR_2, 4: cv2.IMREAD_REDUCED_COLOR_4, 8: cv2.IMREAD_REDUCED_COLOR_8}
+
+
+def read_image(path: Path, reduce: int = 1, size: tuple[int, int] | None = None) -> np.ndarray:
+    """Decode one PNG/JPEG file strictly: an empty or truncated file is a BadFrame, and so is one
+    whose own size (width, height) is not ``size`` (None: any).
+
+    Reduced ``reduce`` times (:func:`granseg.measure.camera.reduce_frame`).
+    A JPEG reduced 2, 4 or 8 times is decoded at that size: libjpeg's
+    scaled decoding takes half the time of a whole 1920 x 1440 frame
+    (18 against 36 ms) and gives each block's mean to 0.3 grey levels
+    (mean absolute difference; 99 % within 2 levels, no shift: 0.002 px),
+    below the compression's own noise (BENCHMARKS.md, "JPEG decoded at the
+    size analysed").
+    """
     try:
         data = path.read_bytes()
     except OSError as exc:
@@ -76,10 +94,50 @@ def read_image(path: Path) -> np.ndarray:
     if not data:
         raise BadFrame(f"{path}: empty file")
     _check_complete(path, data)
-    img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
+    buffer = np.frombuffer(data, np.uint8)
+    own = jpeg_size(data) if reduce in _REDUCED_READ else None
+    if own is not None:
+        img = cv2.imdecode(buffer, _REDUCED_READ[reduce])
+        w, h = own
+        if img is not None and img.shape[:2] == (-(-h // reduce), -(-w // reduce)):  # rounded up
+            check_size(path.name, own, size)
+            return img[:h // reduce, :w // reduce]  # the whole blocks, as reduce_frame keeps
+        # otherwise (turned by its EXIF orientation, say) decoded whole below
+    img = cv2.imdecode(buffer, cv2.IMREAD_COLOR)
     if img is None:
         raise BadFrame(f"{path}: not a readable image")
-    return img
+    check_size(path.name, (img.shape[1], img.shape[0]), size)
+    return reduce_frame(img, reduce)
+
+
+def check_size(name: str, own: tuple[int, int], size: tuple[int, int] | None) -> None:
+    """BadFrame naming frame ``name`` when its own size (width, height) is not ``size`` (the first
+    frame's; None: any)."""
+    if size is not None and tuple(own) != tuple(size):
+        raise BadFrame(f"{name}: size {own[0]} x {own[1]} differs from the first frame's {size[0]} x {size[1]}")
+
+
+def jpeg_size(data: bytes) -> tuple[int, int] | None:
+    """Width and height from a JPEG's frame header (any SOF marker), None if ``data`` is not a JPEG
+    or the header does not say (a height given later, by a DNL marker)."""
+    if data[:2] != b"\xff\xd8":
+        return None
+    i = 2
+    while i + 9 <= len(data):
+        if data[i] != 0xFF:
+            return None
+        marker = data[i + 1]
+        if marker == 0xFF:  # fill byte
+            i += 1
+            continue
+        if marker == 0x01 or 0xD0 <= marker <= 0xD7:  # markers without a length
+            i += 2
+            continue
+        if 0xC0 <= marker <= 0xCF and marker not in (0xC4, 0xC8, 0xCC):  # SOFn, not DHT, JPG, DAC
+            h, w = int.from_bytes(data[i + 5:i + 7], "big"), int.from_bytes(data[i + 7:i + 9], "big")
+            return (w, h) if w and h else None
+        i += 2 + int.from_bytes(data[i + 2:i + 4], "big")
+    return None
 
 
 def _check_complete(path: Path, data: bytes) -> None:
@@ -127,10 +185,11 @@ class VideoFrames:
             cap.release()
             self.decoded = i
 
-    def some(self, indices: set[int], workers: int = 1) -> Iterator[tuple[int, np.ndarray]]:
-        """The decodable frames among ``indices``, in order: the stream is read through once,
-        the frames between only grabbed (not converted to BGR); ``workers`` is not used (a stream
-        is read in order)."""
+    def some(self, indices: set[int], workers: int = 1, reduce: int = 1,
+             size: tuple[int, int] | None = None) -> Iterator[tuple[int, np.ndarray]]:
+        """The decodable frames among ``indices``, in order, reduced ``reduce`` times: the stream is
+        read through once, the frames between only grabbed (not converted to BGR); ``workers`` and
+        ``size`` are not used (a stream is read in order, its frames share one size)."""
         cap = cv2.VideoCapture(cv2_path(self.path))
         try:
             for i in range(max(indices, default=-1) + 1):
@@ -139,7 +198,7 @@ class VideoFrames:
                 if i in indices:
                     ok, img = cap.retrieve()
                     if ok:
-                        yield i, img
+                        yield i, reduce_frame(img, reduce)
         finally:
             cap.release()
 
