@@ -422,8 +422,8 @@ def keep_apart(points: np.ndarray, order: np.ndarray, distance: float) -> list[i
     ``order`` may leave points out.
 
     The same as comparing each point with every kept one (np.hypot), from
-    the close pairs a KD-tree offers, each checked with np.hypot: 0.3 ms
-    instead of 6 for a frame's 200 candidates. A point that is not finite
+    the close pairs a KD-tree offers, each checked with np.hypot: 0.4 ms
+    instead of 6.4 for 300 candidates. A point that is not finite
     is kept and keeps none away.
     """
     order = np.asarray(order, dtype=np.intp)
@@ -448,8 +448,8 @@ def keep_apart(points: np.ndarray, order: np.ndarray, distance: float) -> list[i
 
 def _first_at(maps: np.ndarray, score: np.ndarray) -> np.ndarray:
     """Per pixel, the first of ``maps`` (g, h, w) equal to ``score`` (their maximum): ``np.argmax``
-    over the groups wherever no map is NaN, in a quarter of its time (argmax along the first
-    axis walks the maps in strides)."""
+    over the groups wherever no map is NaN. argmax along the first axis walks the maps in
+    strides: 10.5 ms for two 520 x 720 maps, against 7.0 ms here with the maximum."""
     first = np.full(score.shape, len(maps) - 1, dtype=np.intp)
     for g in range(len(maps) - 2, -1, -1):
         first[maps[g] == score] = g
