@@ -402,8 +402,12 @@ def _peaks(scores: DiskScores, templates: Templates, groups: np.ndarray) -> np.n
     diameter: (m, 5)."""
     d = templates.d
     index = np.flatnonzero(groups)
-    # no copy with one polarity, nor for one group
-    maps = scores.maps[index[0]:index[0] + 1] if len(index) == 1 else scores.maps[index] if len(index) < len(scores.maps) else scores.maps
+    if len(index) == 1:  # a view, not a copy
+        maps = scores.maps[index[0]:index[0] + 1]
+    elif len(index) < len(scores.maps):
+        maps = scores.maps[index]
+    else:  # one polarity: every group
+        maps = scores.maps
     score = maps[0] if len(maps) == 1 else maps.max(axis=0)
     best = index[_first_at(maps, score)]
     size = max(3, int(0.6 * d * scores.scale) | 1)
