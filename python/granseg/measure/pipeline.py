@@ -516,7 +516,7 @@ def _seen(source, worker: _FrameWorker, i: int, image: np.ndarray | None) -> np.
     it from a directory, whose JPEG frames are then decoded at the reduced size (read_image)."""
     if image is None:
         return _bgr(source.read(i, worker.reduce, worker.size))
-    check_size(source.names[i] if i < len(source.names) else f"frame {i}", image.shape[1::-1], worker.size)
+    check_size(_frame_name(source, i), image.shape[1::-1], worker.size)
     return reduce_frame(_bgr(image), worker.reduce)
 
 
@@ -628,10 +628,14 @@ def _warn_if_grey(image: np.ndarray, source, index: int) -> None:
     grey = image.ndim == 2 or (image.shape[2] >= 3 and np.array_equal(image[..., 0], image[..., 1])
                                and np.array_equal(image[..., 1], image[..., 2]))
     if grey:
-        name = source.names[index] if index < len(source.names) else f"frame {index}"
-        warnings.warn(f"{name}: the frames are greyscale (no colour): heavy and light spheres are told apart "
+        warnings.warn(f"{_frame_name(source, index)}: the frames are greyscale (no colour): heavy and light spheres are told apart "
                       "by brightness, gloss and texture only; check the quality report and the preview",
                       GreyFramesWarning, stacklevel=3)
+
+
+def _frame_name(source, i: int) -> str:
+    """Frame ``i``'s name (a video's frames past the count its header gave have none yet)."""
+    return source.names[i] if i < len(source.names) else f"frame {i}"
 
 
 def _bgr(image: np.ndarray) -> np.ndarray:
@@ -640,7 +644,7 @@ def _bgr(image: np.ndarray) -> np.ndarray:
 
 
 def _one_frame(source, worker, i, image):
-    name = source.names[i] if i < len(source.names) else f"frame {i}"
+    name = _frame_name(source, i)
     try:
         return worker(name, _seen(source, worker, i, image))
     except BadFrame as exc:
