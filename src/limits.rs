@@ -121,9 +121,10 @@ pub fn check_threads(threads: usize) -> Result<(), SolveError> {
     Ok(())
 }
 
-/// `len` zeros, reserved fallibly: a refused allocation is an `OutOfMemory`
-/// error naming `what` and the bytes, not an abort.
-pub fn zeroed(len: usize, what: &str) -> Result<Vec<f64>, SolveError> {
+/// An empty vector with room for `len` values, reserved fallibly: a refused
+/// allocation is an `OutOfMemory` error naming `what` and the bytes, not an
+/// abort. Nothing is written, so the pages are touched only as it is filled.
+pub fn reserved(len: usize, what: &str) -> Result<Vec<f64>, SolveError> {
     let mut v: Vec<f64> = Vec::new();
     v.try_reserve_exact(len).map_err(|e| {
         SolveError::OutOfMemory(format!(
@@ -131,6 +132,12 @@ pub fn zeroed(len: usize, what: &str) -> Result<Vec<f64>, SolveError> {
             describe(f64_bytes(len))
         ))
     })?;
+    Ok(v)
+}
+
+/// `len` zeros, reserved fallibly as [`reserved`].
+pub fn zeroed(len: usize, what: &str) -> Result<Vec<f64>, SolveError> {
+    let mut v = reserved(len, what)?;
     v.resize(len, 0.0);
     Ok(v)
 }
@@ -194,6 +201,10 @@ mod tests {
         assert!(matches!(e, SolveError::OutOfMemory(_)), "{e:?}");
         assert!(!e.is_input_error());
         assert_eq!(zeroed(3, "x").unwrap(), vec![0.0; 3]);
+        let e = reserved(usize::MAX / 4, "the test").unwrap_err();
+        assert!(matches!(e, SolveError::OutOfMemory(_)), "{e:?}");
+        let v = reserved(5, "x").unwrap();
+        assert!(v.is_empty() && v.capacity() >= 5);
     }
 
     #[test]

@@ -190,14 +190,33 @@ def test_ctrl_c_stops_the_core_with_keyboard_interrupt(call):
 
 
 @pytest.mark.skipif(sys.platform == "win32", reason="SIGINT to a child process is POSIX")
-def test_ctrl_c_in_the_cli_prints_interrupted_and_exits_130(tmp_path):
+def test_a_long_runs_output_is_filled_as_it_is_written_not_before(tmp_path):
+    # 1801 times x 100 000 cells is a 1.44 GB field; stopped after a second, the run has
+    # touched only the rows it wrote (zeroing it all first took a second that Ctrl-C had to wait)
+    r, took = _interrupt_after("""
+        import resource
+        import granseg
+        print("go", flush=True)
+        try:
+            granseg.simulate(t=[2.0 * i for i in range(1801)], n_cells=100_000, rtol=1e-10, atol=1e-12, field=True)
+        except KeyboardInterrupt:
+            print(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss, flush=True)  # kB on Linux
+    """)
+    assert r.returncode == 0, (r.stdout, r.stderr)
+    assert int(r.stdout.split()[-1]) < 600_000, r.stdout
+    assert took < 5.0, took
+
+
+@pytest.mark.skipif(sys.platform == "win32", reason="SIGINT to a child process is POSIX")
+@pytest.mark.parametrize("wait", [0.1, 3.0])  # while the commands' modules load; while it solves
+def test_ctrl_c_in_the_cli_prints_interrupted_and_exits_130(tmp_path, wait):
     r, took = _interrupt_after(f"""
         import sys
         from granseg.cli import main
         print("go", flush=True)
         sys.exit(main(["simulate", "--n-cells", "100000", "--rtol", "1e-10", "--atol", "1e-12",
                        "--out", {str(tmp_path / "x")!r}]))
-    """, wait=3.0)
+    """, wait=wait)
     assert r.returncode == 130, (r.stdout, r.stderr)
     assert "granseg: interrupted" in r.stderr and "Traceback" not in r.stderr, r.stderr
     assert took < 5.0, took

@@ -38,8 +38,16 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = build_parser()
-    args = parser.parse_args(argv)
+    # Ctrl-C ends every command the same way (130), also while the commands' modules are
+    # still being imported to build the parser (about a second, before any work starts)
+    try:
+        return _run(build_parser().parse_args(argv))
+    except KeyboardInterrupt:
+        print("granseg: interrupted", file=sys.stderr)
+        return 130
+
+
+def _run(args: argparse.Namespace) -> int:
     logging.basicConfig(
         level=logging.DEBUG if args.verbose else logging.INFO,
         format="%(message)s",
@@ -57,9 +65,6 @@ def main(argv: list[str] | None = None) -> int:
     # report needs, is printed only under -v (issue 14).
     try:
         return int(args.func(args) or 0)
-    except KeyboardInterrupt:
-        print("granseg: interrupted", file=sys.stderr)
-        return 130
     except MemoryError as exc:
         _traceback(args)
         print(f"granseg {args.command}: error: out of memory ({exc or 'the request is too large'}); "

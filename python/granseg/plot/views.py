@@ -20,7 +20,6 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from granseg.constants import D_P, N_LAYERS
-from granseg.measure.quality import window_check_of
 from granseg.plot.base import (
     C_LABEL,
     H_LABEL,
@@ -98,6 +97,10 @@ def _map_panels(axes: Sequence[Any], run: Mapping[str, Any]) -> list[Any]:
 
 
 def _depth_mean_panel(ax: Any, run: Mapping[str, Any]) -> None:
+    # imported here: the frame pipeline (scikit-learn and all) costs 1.5 s to import, which
+    # every figure of granseg.plot, `granseg simulate`'s among them, would otherwise pay
+    from granseg.measure.quality import window_check_of
+
     bulk = run["bulk"]
     ref = float(depth_mean(bulk)[0])
     ax.axhline(ref, color="0.4", lw=0.7, ls=":")
