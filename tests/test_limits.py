@@ -149,8 +149,12 @@ def test_velocity_profile_refuses_heights_outside_the_bed():
 def _interrupt_after(code: str, wait: float = 1.0) -> tuple[subprocess.CompletedProcess, float]:
     """Start ``code`` (which prints 'go' before its long call), SIGINT it ``wait`` s later;
     return the finished process and how long it took to end after the signal."""
+    # SIGINT as a terminal leaves it: tests run in the background of a script (`./dev.sh test &`)
+    # inherit it ignored, and a Python started so never installs the handler that raises
+    # KeyboardInterrupt, so every test here would wait out its timeout
     pr = subprocess.Popen([sys.executable, "-c", textwrap.dedent(code)], stdout=subprocess.PIPE,
-                          stderr=subprocess.PIPE, text=True)
+                          stderr=subprocess.PIPE, text=True,
+                          preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     try:
         assert pr.stdout.readline().strip() == "go"
         time.sleep(wait)

@@ -6,6 +6,7 @@ import json
 import re
 import shutil
 import subprocess
+import sys
 
 import matplotlib.image as mpimg
 import numpy as np
@@ -82,6 +83,14 @@ def test_curves_laws_grid_profiles(tmp_path, maps):
     v = line.get_xdata()
     assert v.max() == pytest.approx(23.44 * 2 * np.pi / 60 * 0.095, rel=1e-6)  # v0 at the bottom
     assert_nontrivial(plot.save_figure(fig, tmp_path / "profiles"))
+
+
+def test_the_figures_load_without_the_frame_pipeline():
+    # scikit-learn and the rest of granseg.measure took 1.5 s to import, which every command
+    # that draws a figure paid for one check of the views' figure (BENCHMARKS "Ctrl-C at any moment")
+    code = "import sys, granseg.plot; print(sorted(m for m in sys.modules if m.startswith(('sklearn', 'granseg.measure'))))"
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert r.stdout.strip() == "[]", r.stdout
 
 
 def test_rmsd_grid_needs_two_parameters():
