@@ -196,11 +196,11 @@ def test_ctrl_c_stops_the_core_with_keyboard_interrupt(call):
 
 
 @pytest.mark.skipif(not Path("/proc/self/status").is_file(), reason="reads the peak memory from /proc (Linux)")
-def test_a_long_runs_output_is_filled_as_it_is_written_not_before(tmp_path):
+def test_a_long_runs_output_is_filled_as_it_is_written_not_before():
     # 1801 times x 100 000 cells is a 1.44 GB field; stopped after a second, the run has
-    # touched only the rows it wrote (zeroing it all first took a second that Ctrl-C had to wait)
-    # the peak of this process's own memory since it started: VmHWM (ru_maxrss also counts the
-    # parent's memory at the fork, which late in a test session is over a gigabyte)
+    # touched only the rows it wrote (zeroing it all first took a second that Ctrl-C had to
+    # wait). The peak is the child's own, VmHWM: ru_maxrss also counts the parent's memory at
+    # the fork, over a gigabyte late in a test session.
     r, took = _interrupt_after("""
         import re
         import granseg
