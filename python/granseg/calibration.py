@@ -51,6 +51,7 @@ from typing import Any
 
 import numpy as np
 
+from granseg.constants import DEFAULT_ERRORS, ERRORS
 from granseg.fitting import (
     BASE_PARAMS,
     Baseline,
@@ -64,7 +65,7 @@ from granseg.fitting import (
     fit,
     intervals,
 )
-from granseg.fitting.solve import ERROR_METHODS, MIN_CLUSTERS
+from granseg.fitting.solve import MIN_CLUSTERS
 from granseg.fitting.threads import one_blas_thread
 from granseg.fitting.uncertainty import Uncertainty
 from granseg.maps import Campaign, Map, check_accepted, load_campaign
@@ -74,15 +75,6 @@ __all__ = ["DEFAULT_ERRORS", "DEFAULT_GRID", "ERRORS", "Calibration", "Calibrati
 
 DEFAULT_GRID: dict[str, tuple[float, ...]] = {"k": (0.5, 0.6, 0.7), "delta_over_H": (0.18, 0.20, 0.22)}
 FIXED_BY_MAPS = ("rho_h", "rho_l", "c0")
-#: Error method of a calibration: "auto" takes the experiments as clusters when
-#: there are at least MIN_CLUSTERS of them, else counts entries ("jacobian", with a
-#: note). Chosen by coverage (benches/bench_coverage.py): with 16 experiments the
-#: cluster errors match the estimates' actual spread under every noise process,
-#: where "jacobian" states them 2-4 x too small once grains persist in view
-#: (BENCHMARKS.md "Uncertainty").
-DEFAULT_ERRORS = "auto"
-#: The error methods calibrate accepts.
-ERRORS = ("auto", *ERROR_METHODS)
 
 
 # --------------------------------------------------------------------------- results
@@ -322,7 +314,7 @@ def calibrate(
     max_nfev : cap on residual evaluations per refinement (each one sweep).
     errors : how the standard errors and 95 % intervals are estimated: ``"auto"``
         (default, :data:`DEFAULT_ERRORS`) or one of
-        :data:`granseg.fitting.solve.ERROR_METHODS` (see :mod:`granseg.fitting.uncertainty`).
+        :data:`granseg.constants.ERROR_METHODS` (see :mod:`granseg.fitting.uncertainty`).
     view_dwell : measure the dwell of grains in view from the counts and model it
         (:mod:`granseg.fitting.dwell`); False compares the bed's share directly.
     velocity : a measured shear band in place of fitting delta/H: a ``granseg velocity``

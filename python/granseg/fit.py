@@ -57,7 +57,6 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from scipy.optimize import least_squares
 
 from granseg.errors import FitError
 from granseg.maps import moving_average
@@ -220,6 +219,8 @@ def _solve(
     max_nfev: int | None,
 ) -> tuple[Any, bool, str]:
     """Run least_squares; return (result, converged, message)."""
+    from scipy.optimize import least_squares  # here: see granseg.fitting on import time
+
     res = least_squares(resid, p0, bounds=bounds, x_scale="jac", max_nfev=max_nfev)
     converged = bool(res.success) and res.status > 0
     message = str(res.message) if converged else f"not converged: {res.message}"

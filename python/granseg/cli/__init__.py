@@ -9,11 +9,13 @@ means editing this file.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
 import logging
 import pkgutil
 import sys
 import warnings
+from collections.abc import Iterator
 
 from granseg.errors import GransegError
 
@@ -41,7 +43,9 @@ def main(argv: list[str] | None = None) -> int:
     # Ctrl-C ends every command the same way (130), also while the commands' modules are
     # still being imported to build the parser (about a second, before any work starts)
     try:
-        return _run(build_parser().parse_args(argv))
+        with _interrupts_as_such():
+            parser = build_parser()
+        return _run(parser.parse_args(argv))
     except KeyboardInterrupt:
         print("granseg: interrupted", file=sys.stderr)
         return 130
@@ -64,7 +68,8 @@ def _run(args: argparse.Namespace) -> int:
     # Every failure ends as one line naming what went wrong; the traceback, which a bug
     # report needs, is printed only under -v (issue 14).
     try:
-        return int(args.func(args) or 0)
+        with _interrupts_as_such():
+            return int(args.func(args) or 0)
     except MemoryError as exc:
         _traceback(args)
         print(f"granseg {args.command}: error: out of memory ({exc or 'the request is too large'}); "
@@ -88,6 +93,25 @@ def _run(args: argparse.Namespace) -> int:
         print(f"granseg {args.command}: internal error: {type(exc).__name__}: {exc} (a bug in granseg; "
               "run again with -v for the traceback to report it)", file=sys.stderr)
         return 4
+
+
+@contextlib.contextmanager
+def _interrupts_as_such() -> Iterator[None]:
+    """Raise as a KeyboardInterrupt an error raised because of one.
+
+    Ctrl-C while a C extension loads or runs can surface as another exception
+    (SystemError, ImportError) whose cause or context is the KeyboardInterrupt;
+    the user pressed Ctrl-C, so the command ends as interrupted (130), not as a bug (4).
+    """
+    try:
+        yield
+    except Exception as exc:
+        chain: list[BaseException] = [exc]
+        while (link := chain[-1].__cause__ or chain[-1].__context__) is not None and link not in chain:
+            chain.append(link)
+        if any(isinstance(e, KeyboardInterrupt) for e in chain):
+            raise KeyboardInterrupt from exc
+        raise
 
 
 def _traceback(args: argparse.Namespace) -> None:

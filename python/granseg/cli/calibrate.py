@@ -9,7 +9,7 @@ from typing import Any
 
 import numpy as np
 
-from granseg.calibration import DEFAULT_ERRORS, ERRORS
+from granseg.constants import DEFAULT_ERRORS, ERRORS
 
 __all__ = ["register", "run", "parse_grid", "parse_bounds", "add_calibration_options"]
 

@@ -17,6 +17,11 @@
 
 ``granseg.calibrate`` is the factorial table plus ``fit(data, Baseline())``;
 ``granseg.diagnose`` starts from that calibration.
+
+scipy.optimize and scipy.stats are imported inside the functions that use
+them, not at the top of these modules: importing them takes about a second,
+and the command line names the causes (``granseg diagnose --causes``) to build
+its parser on every command, ``granseg --help`` included. A test keeps it so.
 """
 
 from granseg.fitting import causes, confusion, dwell

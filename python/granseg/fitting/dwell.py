@@ -41,7 +41,6 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from scipy.optimize import least_squares
 
 from granseg import _core
 from granseg.maps import Map
@@ -224,6 +223,8 @@ def measure(maps: Sequence[Map], exps: Sequence[Any], fixed: dict[str, float] | 
     lo = [-np.log(WIDTH_RANGE_DP[1] * D_p), DELTA_RANGE[0]]
     hi = [-np.log(WIDTH_RANGE_DP[0] * D_p), DELTA_RANGE[1]]
     x0 = [-np.log(10.0 * D_p), fixed.get("delta_over_H", defaults()["delta_over_H"])]
+    from scipy.optimize import least_squares  # here: see granseg.fitting on import time
+
     sol = least_squares(residual, x0, bounds=(lo, hi))
     width, delta = float(np.exp(-sol.x[0])), float(sol.x[1])
     overlaps = []

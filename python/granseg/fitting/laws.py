@@ -39,8 +39,6 @@ from dataclasses import dataclass
 from typing import Any, ClassVar
 
 import numpy as np
-from scipy.interpolate import BSpline
-from scipy.optimize import least_squares
 
 from granseg.fitting.effects import Effect, ExpInfo, Param
 from granseg.fitting.solve import Fit
@@ -71,6 +69,8 @@ def basis(n: int = N_BASIS, centred: bool = False) -> np.ndarray:
     deg = 2
     inner = np.linspace(0.0, 1.0, n - deg + 1)
     t = np.concatenate([[0.0] * deg, inner, [1.0] * deg])
+    from scipy.interpolate import BSpline  # here: see granseg.fitting on import time
+
     B = BSpline.design_matrix(KNOTS, t, deg).toarray()
     if centred:
         B = B - B.mean(axis=0)
@@ -339,6 +339,8 @@ FORMS: tuple[Form, ...] = (
 
 def literature_form(f: Fit, sh: Mapping[str, Any] | None = None) -> dict[str, Any] | None:
     """The known form (:data:`FORMS`) whose best fit lies inside the fitted band at every knot, if any."""
+    from scipy.optimize import least_squares  # here: see granseg.fitting on import time
+
     law: LawCorrection = f.effect  # type: ignore[assignment]
     sh = shape(f) if sh is None else sh
     a, _ = _coefficient_block(f)

@@ -36,8 +36,8 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
-from scipy.optimize import least_squares
 
+from granseg.constants import ERROR_METHODS
 from granseg.fit import weighted_covariance
 from granseg.fitting import uncertainty
 from granseg.fitting.effects import Effect, Param
@@ -49,7 +49,6 @@ __all__ = ["ERROR_METHODS", "MIN_CLUSTERS", "PRIOR_WEIGHT", "Fit", "compact", "c
 #: Weight of the parameter priors, in units of the stacked sum of squares
 #: (sum over experiments of MSE): one prior sd costs PRIOR_WEIGHT**2.
 PRIOR_WEIGHT = 0.01
-ERROR_METHODS = ("jacobian", "cluster", "jackknife")
 #: Fewer experiments than this and the robust errors say their own spread is uncertain.
 MIN_CLUSTERS = 8
 #: Stopping tolerances of every fit (relative step and cost change).
@@ -244,6 +243,8 @@ def fit(data: Data, effect: Effect, *, params: Sequence[Param] | None = None,
     start = np.array([float((x0 or {}).get(p.name, p.start)) for p in params])
     start = np.clip(start, ev.lo + 1e-9 * span, ev.hi - 1e-9 * span)
     t0 = time.perf_counter()
+    from scipy.optimize import least_squares  # here: see granseg.fitting on import time
+
     sol = least_squares(ev.fun, start, jac=ev.jacobian, bounds=(ev.lo, ev.hi), x_scale="jac",
                         max_nfev=max_nfev, xtol=XTOL, ftol=FTOL, gtol=GTOL)
     res, jac, layers = ev(sol.x)

@@ -38,7 +38,6 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from scipy import stats
 
 __all__ = ["LEVEL", "METHODS", "Uncertainty", "cluster_covariance", "describe", "jackknife_covariance",
            "time_blocks"]
@@ -134,6 +133,8 @@ class Uncertainty:
     @property
     def quantile(self) -> float:
         """Half-width of the interval in standard errors."""
+        from scipy import stats  # here: see granseg.fitting on import time
+
         q = 0.5 + self.level / 2
         return float(stats.norm.ppf(q) if not np.isfinite(self.dof) else stats.t.ppf(q, self.dof))
 
