@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import os
+import subprocess
+import sys
 import warnings
 
 import pytest
@@ -38,3 +41,22 @@ def test_the_fits_use_one_blas_thread_and_give_the_rest_back(monkeypatch, entry)
             granseg.diagnose(maps, progress=False, causes=["diffusivity_scale"], n_cells=30)
     assert seen and all(s == {1} for s in seen), seen
     assert _blas_threads() == before
+
+
+@pytest.mark.skipif((os.cpu_count() or 1) < 2, reason="one core: BLAS runs one thread anyway")
+def test_the_limit_holds_for_a_blas_the_first_fit_loads():
+    # scipy's OpenBLAS loads with scipy, which the fitting layer imports inside its functions: a
+    # limit set before it loaded would not reach it, and the process's first fit ran on every core
+    code = """if True:
+        from threadpoolctl import threadpool_info
+        from granseg.fitting.threads import one_blas_thread
+
+        @one_blas_thread
+        def first_fit():
+            import scipy.optimize  # as the fitting layer imports it, on the first fit
+            return {lib["num_threads"] for lib in threadpool_info() if lib["user_api"] == "blas"}
+
+        print(sorted(first_fit()))
+    """
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert r.stdout.strip() == "[1]", r.stdout

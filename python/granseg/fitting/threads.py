@@ -17,6 +17,10 @@ import functools
 from collections.abc import Callable
 from typing import Any, TypeVar
 
+# scipy's own OpenBLAS (apart from numpy's) is loaded with scipy.linalg, and threadpoolctl limits
+# only the libraries loaded when the limit is set: the fitting layer imports scipy inside its
+# functions (granseg.fitting, on import time), so the first fit would otherwise run unlimited
+import scipy.linalg  # noqa: F401
 from threadpoolctl import threadpool_limits
 
 __all__ = ["one_blas_thread"]
