@@ -8,6 +8,7 @@ import sys
 import numpy as np
 import pytest
 
+import granseg
 import granseg.model
 from granseg.cli import main
 from granseg.maps import load_map
@@ -52,6 +53,11 @@ def test_help_works(argv, capsys):
     assert exc.value.code == 0
     assert "granseg" in capsys.readouterr().out
 
+
+def test_version_is_the_packages(capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(["--version"])
+    assert exc.value.code == 0 and capsys.readouterr().out == f"granseg {granseg.__version__}\n"
 
 
 def test_the_parser_needs_nothing_but_numpy():

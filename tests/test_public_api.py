@@ -11,6 +11,9 @@ from __future__ import annotations
 import importlib
 import inspect
 import pkgutil
+import re
+import tomllib
+from pathlib import Path
 
 import granseg
 
@@ -66,3 +69,12 @@ def test_every_exception_class_in_the_package_derives_from_granseg_error():
                     and not issubclass(value, Warning) and value.__module__.startswith("granseg.")):
                 # (the core's own _core.SolverError has module "_core": granseg.model re-raises it)
                 assert issubclass(value, granseg.GransegError), f"{info.name}.{name}"
+
+
+def test_one_version_everywhere():
+    # granseg --version, the wheel (pyproject.toml) and the core (Cargo.toml) name one release
+    root = Path(__file__).resolve().parents[1]
+    wheel = tomllib.loads((root / "pyproject.toml").read_text())["project"]["version"]
+    core = tomllib.loads((root / "Cargo.toml").read_text())["package"]["version"]
+    assert granseg.__version__ == wheel == core, (granseg.__version__, wheel, core)
+    assert re.fullmatch(r"\d+\.\d+\.\d+", granseg.__version__)

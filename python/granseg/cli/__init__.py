@@ -17,6 +17,7 @@ import sys
 import warnings
 from collections.abc import Iterator
 
+from granseg import __version__
 from granseg.errors import GransegError
 
 __all__ = ["main", "build_parser"]
@@ -29,6 +30,7 @@ def build_parser() -> argparse.ArgumentParser:
         "frames to maps, simulation, calibration and diagnosis.",
     )
     parser.add_argument("-v", "--verbose", action="store_true", help="more log output")
+    parser.add_argument("--version", action="version", version=f"granseg {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
     for info in sorted(pkgutil.iter_modules(__path__), key=lambda m: m.name):
