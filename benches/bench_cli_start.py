@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -25,6 +26,7 @@ COMMANDS = {
     "granseg --help": ["--help"],
     "granseg simulate --help": ["simulate", "--help"],
     "granseg diagnose --help": ["diagnose", "--help"],
+    "granseg init-experiment (4 frames)": ["init-experiment", "{tmp}/frames", "--force", "--no-preview"],
     "granseg simulate (defaults)": ["simulate", "--out", "{tmp}/map", "--force"],
     "granseg analyze (a 4-frame fixture)": ["analyze", "{tree}/tests/fixtures/pbr/pom-pp", "--out", "{tmp}/a.npz",
                                             "--force", "--no-progress"],
@@ -73,6 +75,9 @@ def main() -> None:
         return
     times: dict[tuple[str, Path], list[float]] = {}
     with tempfile.TemporaryDirectory() as tmp:
+        (Path(tmp) / "frames").mkdir()  # a recording without its experiment.json yet
+        for frame in sorted((args.trees[0] / "tests/fixtures/pbr/pom-pp").glob("frame_*")):
+            shutil.copy(frame, Path(tmp) / "frames")
         for turn in range(args.turns):
             for name, argv in COMMANDS.items():
                 for tree in args.trees:

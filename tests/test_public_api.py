@@ -12,6 +12,8 @@ import importlib
 import inspect
 import pkgutil
 import re
+import subprocess
+import sys
 import tomllib
 from pathlib import Path
 
@@ -78,3 +80,16 @@ def test_one_version_everywhere():
     core = tomllib.loads((root / "Cargo.toml").read_text())["package"]["version"]
     assert granseg.__version__ == wheel == core, (granseg.__version__, wheel, core)
     assert re.fullmatch(r"\d+\.\d+\.\d+", granseg.__version__)
+
+
+def test_the_frame_pipelines_names_load_when_asked_and_its_light_parts_without_the_detector():
+    import granseg.measure
+
+    for name in granseg.measure.__all__:
+        assert getattr(granseg.measure, name) is getattr(importlib.import_module(granseg.measure._LAZY[name]), name)
+    # init-experiment and calibrate-camera took 3.4 s, 2.5 s of it scikit-learn and scipy.stats
+    # for the detector they do not use (BENCHMARKS "The command line's start")
+    code = ("import sys, granseg.measure.init, granseg.measure.camera; "
+            "print(sorted(m for m in sys.modules if m.startswith(('sklearn', 'scipy.stats', 'granseg.measure.detect'))))")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert r.stdout.strip() == "[]", r.stdout

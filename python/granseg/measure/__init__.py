@@ -10,14 +10,42 @@ camera (undistortion, calibration), detect (spheres: learning, then per
 frame templates -> matches over the sphere disk, outline -> centres), classify
 (heavy or light by colour), layers (binning), pipeline (the run), preview
 (images).
+
+Names are imported lazily, as in :mod:`granseg`: the detector loads scikit-learn
+and scipy.stats (about 2.5 s), which ``granseg init-experiment`` and
+``granseg calibrate-camera`` (camera, sources) do not need.
 """
 
 from __future__ import annotations
 
-from granseg.measure.camera import Undistorter, calibrate_camera
-from granseg.measure.detect import detect_particles
-from granseg.measure.experiment import Experiment, load_experiment
-from granseg.measure.pipeline import Analysis, BadFrameWarning, GreyFramesWarning, analyze
+import importlib
+from typing import Any
 
-__all__ = ["Analysis", "BadFrameWarning", "GreyFramesWarning", "Experiment", "Undistorter", "analyze",
-           "calibrate_camera", "detect_particles", "load_experiment"]
+# public name -> the module that holds it
+_LAZY: dict[str, str] = {
+    "Analysis": "granseg.measure.pipeline",
+    "BadFrameWarning": "granseg.measure.pipeline",
+    "GreyFramesWarning": "granseg.measure.pipeline",
+    "analyze": "granseg.measure.pipeline",
+    "Experiment": "granseg.measure.experiment",
+    "load_experiment": "granseg.measure.experiment",
+    "Undistorter": "granseg.measure.camera",
+    "calibrate_camera": "granseg.measure.camera",
+    "detect_particles": "granseg.measure.detect",
+}
+
+__all__ = sorted(_LAZY)
+
+
+def __getattr__(name: str) -> Any:
+    try:
+        module_name = _LAZY[name]
+    except KeyError:
+        raise AttributeError(f"module 'granseg.measure' has no attribute {name!r}") from None
+    value = getattr(importlib.import_module(module_name), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return __all__
