@@ -44,7 +44,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     # Ctrl-C ends every command the same way (130), also while the commands' modules are
-    # still being imported to build the parser (about a second, before any work starts)
+    # still being imported to build the parser (a few tenths of a second, before any work starts)
     try:
         with _interrupts_as_such():
             parser = build_parser()
@@ -58,8 +58,8 @@ def console() -> int:
     """The ``granseg`` command: :func:`main`, then a quick exit.
 
     At exit Python collects every reference cycle left in the heap; with matplotlib, the
-    frame pipeline and scikit-learn loaded that took 0.5-0.6 s of each command (0.06-0.08 s
-    with the heap frozen; BENCHMARKS "The command line's start"). Frozen cycles are never
+    frame pipeline and scikit-learn loaded that took about half a second of each command
+    (under a tenth with the heap frozen; BENCHMARKS "The command line's start"). Frozen cycles are never
     collected, which only matters to a process that goes on: the tests call :func:`main`.
     Files are closed by the code that writes them and atexit handlers (logging, temporary
     folders, a dask client) still run.
