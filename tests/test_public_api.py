@@ -86,7 +86,8 @@ def test_the_frame_pipelines_names_load_when_asked_and_its_light_parts_without_t
     import granseg.measure
 
     for name in granseg.measure.__all__:
-        assert getattr(granseg.measure, name) is getattr(importlib.import_module(granseg.measure._LAZY[name]), name)
+        module, attr = granseg.measure._LAZY[name]
+        assert getattr(granseg.measure, name) is getattr(importlib.import_module(module), attr)
     # init-experiment and calibrate-camera took 3.4 s, 2.5 s of it scikit-learn and scipy.stats
     # for the detector they do not use (BENCHMARKS "The command line's start")
     code = ("import sys, granseg.measure.init, granseg.measure.camera; "

@@ -20,9 +20,7 @@ command line starts fast and the frame pipeline does not load the solver.
 
 from __future__ import annotations
 
-import importlib
-from typing import Any
-
+from granseg._lazy import lazy_names
 from granseg.errors import FitError as FitError
 from granseg.errors import GransegError as GransegError
 from granseg.errors import SolverError as SolverError
@@ -54,17 +52,4 @@ _LAZY: dict[str, tuple[str, str | None]] = {
 
 __all__ = sorted([*_LAZY, "SolverError", "FitError", "GransegError", "__version__"])
 
-
-def __getattr__(name: str) -> Any:
-    try:
-        module_name, attr = _LAZY[name]
-    except KeyError:
-        raise AttributeError(f"module 'granseg' has no attribute {name!r}") from None
-    module = importlib.import_module(module_name)
-    value = module if attr is None else getattr(module, attr)
-    globals()[name] = value
-    return value
-
-
-def __dir__() -> list[str]:
-    return __all__
+__getattr__, __dir__ = lazy_names(__name__, _LAZY, __all__)

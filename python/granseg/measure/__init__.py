@@ -18,34 +18,15 @@ and scipy.stats (about 2.5 s), which ``granseg init-experiment`` and
 
 from __future__ import annotations
 
-import importlib
-from typing import Any
+from granseg._lazy import lazy_names
 
-# public name -> the module that holds it
-_LAZY: dict[str, str] = {
-    "Analysis": "granseg.measure.pipeline",
-    "BadFrameWarning": "granseg.measure.pipeline",
-    "GreyFramesWarning": "granseg.measure.pipeline",
-    "analyze": "granseg.measure.pipeline",
-    "Experiment": "granseg.measure.experiment",
-    "load_experiment": "granseg.measure.experiment",
-    "Undistorter": "granseg.measure.camera",
-    "calibrate_camera": "granseg.measure.camera",
-    "detect_particles": "granseg.measure.detect",
-}
+# public name -> (the module that holds it, its name there)
+_LAZY = {name: (module, name) for module, names in {
+    "granseg.measure.pipeline": ("Analysis", "BadFrameWarning", "GreyFramesWarning", "analyze"),
+    "granseg.measure.experiment": ("Experiment", "load_experiment"),
+    "granseg.measure.camera": ("Undistorter", "calibrate_camera"),
+    "granseg.measure.detect": ("detect_particles",),
+}.items() for name in names}
 
 __all__ = sorted(_LAZY)
-
-
-def __getattr__(name: str) -> Any:
-    try:
-        module_name = _LAZY[name]
-    except KeyError:
-        raise AttributeError(f"module 'granseg.measure' has no attribute {name!r}") from None
-    value = getattr(importlib.import_module(module_name), name)
-    globals()[name] = value
-    return value
-
-
-def __dir__() -> list[str]:
-    return __all__
+__getattr__, __dir__ = lazy_names(__name__, _LAZY, __all__)

@@ -22,20 +22,11 @@ Example::
 
 from __future__ import annotations
 
-import importlib
-from typing import Any
+from granseg._lazy import lazy_names
 
 __all__ = ["build_report", "report_data", "write_report"]
 
-_LAZY = {"build_report": "granseg.report.calibration", "report_data": "granseg.report.calibration",
-         "write_report": "granseg.report.diagnosis"}
-
-
-def __getattr__(name: str) -> Any:
-    try:
-        module = _LAZY[name]
-    except KeyError:
-        raise AttributeError(f"module 'granseg.report' has no attribute {name!r}") from None
-    value = getattr(importlib.import_module(module), name)
-    globals()[name] = value
-    return value
+_LAZY = {"build_report": ("granseg.report.calibration", "build_report"),
+         "report_data": ("granseg.report.calibration", "report_data"),
+         "write_report": ("granseg.report.diagnosis", "write_report")}
+__getattr__, __dir__ = lazy_names(__name__, _LAZY, __all__)
