@@ -5,8 +5,9 @@
 
 Each turn starts a fresh interpreter per tree and command, with ``PYTHONPATH`` at the tree's
 ``python/`` folder, runs what the installed ``granseg`` command runs, and times it to its
-exit (the command's whole wall time, as a user waits for it). Trees take turns so that a machine that slows down for a minute slows each alike; the
-table gives each tree's least and most over the turns. ``--exit`` times instead how long the
+exit (the command's whole wall time, as a user waits for it). Trees take turns so that a
+machine that slows down for a minute slows each alike; the table gives each tree's least and
+most over the turns. ``--exit`` times instead how long the
 last two commands take to exit once ``main`` has returned, as Python exits and with the heap
 frozen first (what ``granseg.cli.console`` does).
 """
@@ -33,26 +34,29 @@ COMMANDS = {
 }
 
 
+def _sources(tree: Path) -> dict[str, str]:
+    """The environment of a child that imports granseg from ``tree``'s sources."""
+    return {**os.environ, "PYTHONPATH": str(tree / "python")}
+
+
 def seconds(tree: Path, argv: list[str]) -> float:
     """Wall time [s] of ``granseg argv`` run from ``tree``'s sources; a failure stops the bench."""
-    env = {**os.environ, "PYTHONPATH": str(tree / "python")}
     # what the installed `granseg` runs: console() where the tree has it (main() before 2026-11-30)
     code = "import sys, granseg.cli as cli; sys.exit(getattr(cli, 'console', cli.main)())"
     t0 = time.perf_counter()
-    subprocess.run([sys.executable, "-c", code, *argv], env=env, check=True, capture_output=True)
+    subprocess.run([sys.executable, "-c", code, *argv], env=_sources(tree), check=True, capture_output=True)
     return time.perf_counter() - t0
 
 
 def exit_seconds(tree: Path, argv: list[str], freeze: bool) -> float:
     """Seconds from ``main`` returning to the process's end, with the heap frozen first or not."""
-    env = {**os.environ, "PYTHONPATH": str(tree / "python")}
     code = ("import gc, sys, time, granseg.cli as cli\n"
             "freeze = sys.argv.pop(1) == 'freeze'\n"
             "rc = cli.main(sys.argv[1:])\n"
             "print('RETURNED', time.time(), file=sys.stderr, flush=True)\n"
             "if freeze:\n    gc.freeze()\n"
             "sys.exit(rc)\n")
-    r = subprocess.run([sys.executable, "-c", code, "freeze" if freeze else "as-is", *argv], env=env, check=True,
+    r = subprocess.run([sys.executable, "-c", code, "freeze" if freeze else "as-is", *argv], env=_sources(tree), check=True,
                        capture_output=True, text=True)
     ended = time.time()
     return ended - float(next(line.split()[1] for line in r.stderr.splitlines() if line.startswith("RETURNED")))
