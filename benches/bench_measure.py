@@ -18,7 +18,9 @@ its own process with one thread, all at once: what processes instead of
 threads would give (the rate after each run's fixed part, summed).
 ``--frame-worker`` also times the per-frame work alone on one thread (frames
 decoded beforehand): the figure a change to the per-frame code moves.
-``--reduce K [K ...]`` times the analysis of the frames reduced K times
+``--stages`` times the frame worker's largest steps (:data:`STAGES`) in one
+process, round by round: what a change to one step saves, which the host's
+drift between two whole runs can hide. ``--reduce K [K ...]`` times the analysis of the frames reduced K times
 (analyze's ``reduce``; default its own choice) for each K, taking turns:
 
     PYTHONPATH=python python benches/bench_measure.py --frames 120 --diameter 80 --dir DIR --reduce 1 2 --frame-worker
@@ -45,7 +47,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from granseg.measure import analyze, pipeline
+from granseg.measure import analyze, detect, pipeline, templates
 from granseg.measure.experiment import load_experiment
 from granseg.measure.sources import read_image
 from granseg.synth import render_frames
@@ -148,6 +150,60 @@ def frame_worker_ms(source: Path, frames: int = 20, rounds: int = 3, reduce: int
     return 1e3 * best
 
 
+# The frame worker's largest steps, where the module that calls each looks it up.
+STAGES = (
+    ("undistort and crop", pipeline._FrameWorker, "_crop"),
+    ("disk correlation", templates.DiskScores, "of"),
+    ("  of which the disks' spread", templates, "_masked_spread"),
+    ("outline fit", detect, "fit_outlines"),
+    ("appearance features", pipeline, "sphere_features"),
+)
+
+
+def stage_ms(source: Path, frames: int = 20, rounds: int = 3, reduce: int | None = None) -> list[dict[str, float]]:
+    """Per round, the frame worker's milliseconds per frame (``"frame"``) and those of each of
+    :data:`STAGES` (one thread, decoded beforehand, as :func:`frame_worker_ms`), timed in one
+    process: what a change to one step saves, read apart from the host's drift between runs."""
+    cv2.setNumThreads(1)
+    exp = load_experiment(source / "experiment.json")
+    files = sorted(source.glob("*.jpg"))[:frames]
+    k = pipeline.analysis_reduction(exp.particle_diameter_px) if reduce is None else reduce
+    images = [read_image(p, k) for p in files]
+    worker = pipeline._FrameWorker(exp, cv2.imread(str(files[0])).shape[1::-1], reduce=k)
+    worker.learn(images[0])
+    spent = dict.fromkeys([name for name, _, _ in STAGES], 0.0)
+    saved = [(owner, attr, owner.__dict__[attr]) for _, owner, attr in STAGES]
+    for (name, owner, attr), (_, _, original) in zip(STAGES, saved, strict=True):
+        setattr(owner, attr, _timed(original, name, spent))
+    try:
+        result = []
+        for _ in range(rounds):
+            spent.update(dict.fromkeys(spent, 0.0))
+            start = time.perf_counter()
+            for i, image in enumerate(images):
+                worker(str(i), image)
+            took = time.perf_counter() - start
+            result.append({"frame": 1e3 * took / len(images)} | {n: 1e3 * t / len(images) for n, t in spent.items()})
+        return result
+    finally:
+        for owner, attr, original in saved:
+            setattr(owner, attr, original)
+
+
+def _timed(original, name: str, spent: dict[str, float]):
+    """``original`` (a function or classmethod) adding its seconds to ``spent[name]``."""
+    function = original.__func__ if isinstance(original, classmethod) else original
+
+    def timed(*args, **kwargs):
+        start = time.perf_counter()
+        try:
+            return function(*args, **kwargs)
+        finally:
+            spent[name] += time.perf_counter() - start
+
+    return classmethod(timed) if isinstance(original, classmethod) else timed
+
+
 def split_processes(source: Path, parts: int, tmp: Path) -> str:
     """The frames split in ``parts`` consecutive runs, each analysed by its own one-threaded process, all at
     once: the rate after each run's fixed part, summed (what processes instead of threads would give)."""
@@ -199,6 +255,8 @@ def main() -> None:
                     help="analyse this folder's frames (and experiment.json), repeated up to --frames")
     ap.add_argument("--frame-worker", action="store_true",
                     help="also time the frame worker alone on one thread (ms per frame, first 20 frames)")
+    ap.add_argument("--stages", action="store_true",
+                    help="also time the frame worker's largest steps in one process (ms per frame, 3 rounds)")
     ap.add_argument("--split-processes", action="store_true",
                     help="also analyse the frames split in --workers runs, one process of one thread each")
     ap.add_argument("--reduce", type=int, nargs="+", default=[None], metavar="K",
@@ -229,6 +287,7 @@ def main() -> None:
         after = yardstick_ms(first, args.workers)
         split = split_processes(d, args.workers, Path(tmp)) if args.split_processes else None
         alone = {k: frame_worker_ms(d, reduce=k) for k in args.reduce} if args.frame_worker else None
+        stages = {k: stage_ms(d, reduce=k) for k in args.reduce} if args.stages else None
     for k, (elapsed, fixed, a) in best.items():
         per = a.n.sum(axis=1).mean()
         diameter = a.experiment.particle_diameter_px
@@ -239,6 +298,10 @@ def main() -> None:
               f"machine yardstick {before:.0f} ms before, {after:.0f} ms after")
         if alone is not None:
             print(f"  frame worker alone, one thread: {alone[k]:.1f} ms/frame (least of 3 rounds over 20 frames)")
+        if stages is not None:
+            print("  its steps timed in one process, one thread, ms/frame over 20 frames in each of 3 rounds:")
+            for name in stages[k][0]:
+                print(f"    {name:<30} {', '.join(f'{r[name]:.1f}' for r in stages[k])}")
     if split is not None:
         print(split)
 

@@ -12,6 +12,7 @@ from hypothesis import strategies as st
 from scipy.spatial import cKDTree
 
 import granseg.measure.outline as outline_module
+import granseg.measure.templates as templates_module
 from granseg.measure.detect import (
     TURN,
     _centre_of_symmetry,
@@ -98,6 +99,29 @@ def test_disk_scores_find_a_sphere_where_it_is(d):
     assert abs(x[0] - x0) <= 0.5 / scores.scale + 0.1 and abs(y[0] - y0) <= 0.5 / scores.scale + 0.1
     back = scores.to_map(x, y, np.zeros((1, 2)))
     assert (back[0][0], back[1][0]) == (col, row)
+
+
+def test_groups_of_one_disk_share_its_spread(monkeypatch):
+    """Groups matched with one disk on one sign's image share the image's spread under it, computed
+    once; each group's map is what it would be matched alone, and a group of another disk has its own."""
+    d, half = 20.0, 15
+    size = 2 * half + 1
+    yy, xx = np.mgrid[0:size, 0:size] - half
+    bright, dark = ((a * (np.hypot(xx, yy) <= d / 2) + 40.0 + xx - yy).astype(np.float32) for a in (200.0, 60.0))
+    disk, other = _disk(size, (0.0, 0.0), 1.05 * d / 2), _disk(size, (0.0, 0.0), 0.9 * d / 2)
+    patches, disks = (bright, dark, bright), (disk, disk, other)
+    templates = Templates(patches, np.zeros((3, 2)), np.full(3, d / 2), np.zeros((3, 3)), disks, d, np.ones(3, int))
+    image = cv2.GaussianBlur(np.random.default_rng(1).uniform(0, 255, (120, 160)).astype(np.float32), (0, 0), 3)
+    calls = []
+    counted = templates_module._masked_spread
+    monkeypatch.setattr(templates_module, "_masked_spread", lambda i, m: calls.append(m) or counted(i, m))
+    together = DiskScores.of({1: image}, templates).maps
+    assert len(calls) == 2
+    for g in range(3):
+        one = Templates(patches[g:g + 1], np.zeros((1, 2)), np.full(1, d / 2), np.zeros((1, 3)), disks[g:g + 1], d,
+                        np.ones(1, int))
+        alone = DiskScores.of({1: image}, one)
+        np.testing.assert_array_equal(together[g], alone.maps[0])
 
 
 def _rows(rng: np.random.Generator, d: float, ys: tuple[float, float], xs: tuple[float, float]) -> np.ndarray:

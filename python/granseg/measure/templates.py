@@ -342,16 +342,22 @@ class DiskScores:
         columns = templates.by_column or (None,) * len(match.patches)
         geometry = cls(np.zeros((0, 1, 1), np.float32), pad, half, scale)  # map <-> image coordinates
         maps = []
+        # groups of one sign and one disk share the image's spread under it:
+        # two of a frame's largest correlations (5 ms at 80 px, BENCHMARKS.md)
+        spreads: dict[tuple[int, tuple[int, ...], bytes], np.ndarray] = {}
         for g, (t, m, s, part, looks) in enumerate(zip(match.patches, match.disks, templates.signs, columns,
                                                         match.looks, strict=True)):
             image = padded[int(s)]
+            key = (int(s), m.shape, m.tobytes())
+            if key not in spreads:
+                spreads[key] = _masked_spread(image, m)
+            spread = spreads[key]
             if part is None:
-                maps.append(_masked_correlation(image, t, m))
+                maps.append(_masked_correlation(image, t, m, spread))
                 continue
             # each column of the map correlated with its own column's template,
             # on the strip of the image that column's matches cover
             edges = part[0]
-            spread = _masked_spread(image, m)
             cols = np.arange(spread.shape[1], dtype=float)
             x, _ = geometry.to_image(cols, cols, np.repeat(templates.offsets[g:g + 1], len(cols), axis=0))
             column = np.searchsorted(edges, x)
