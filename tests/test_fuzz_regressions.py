@@ -107,6 +107,28 @@ def test_a_folder_name_that_is_not_utf8_does_not_crash_opencv(tmp_path):
     assert sum("not valid UTF-8" in x for x in lines) == 2, r.stdout
 
 
+@pytest.mark.parametrize("window", [[-1e6, -1e6, 1e6, 1e6], [0.0, 0.0, 5000.0, 300.0]])
+def test_a_window_far_larger_than_the_frames_is_named_before_any_table(tmp_path, window):
+    """Was: exit 4, OpenCV asked for 16 TB of undistortion tables for a window of 2e6 px (the crop
+    is tabled before the window was checked against the image)."""
+    import json
+
+    import cv2
+
+    from fuzz_strategies import EXPERIMENT_BASE
+    from granseg.measure import analyze
+    from granseg.measure.camera import Undistorter
+
+    frame = np.random.default_rng(0).integers(0, 256, (415, 405, 3), dtype=np.uint8)
+    cv2.imwrite(str(tmp_path / "frame_0000.png"), frame)
+    (tmp_path / "experiment.json").write_text(json.dumps(EXPERIMENT_BASE | {"window": window}))
+    with pytest.raises(ValueError, match=r"field 'window': .* is outside the image \(405 x 415 px\)"):
+        analyze(tmp_path, save=False, progress=False)
+    with pytest.raises(ValueError, match="more than 3 times the image"):
+        Undistorter(np.eye(3), np.zeros(5), (405, 415), (0, 0, 1216, 100))
+    Undistorter(np.eye(3), np.zeros(5), (405, 415), (-405, -415, 810, 830))  # three frames: tabled
+
+
 def test_a_quality_record_whose_checks_are_not_objects_is_named(tmp_path):
     """Was: AttributeError ("'int' object has no attribute 'items'") from Map.failed_checks."""
     for checks in ("5", "[1, 2]", '{"a": 3}'):

@@ -21,19 +21,30 @@ log = logging.getLogger(__name__)
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp")
 
 
+# How many frames wide and high a crop may be. What the sensor sees reaches
+# less than a frame beyond it once undistorted, even through a wide-angle lens,
+# so a larger crop holds pixels no lens shows; its tables (28 bytes a pixel)
+# are refused before they are allocated (a window of 2e6 px asked for 16 TB).
+MAX_CROP_FRAMES = 3
+
+
 class Undistorter:
     """Undistort and crop frames with remap tables built once.
 
     ``camera_matrix`` (3x3) and ``dist_coeffs`` follow OpenCV; the undistorted
     image keeps the same camera matrix (as ``cv2.undistort``). ``crop`` =
     (x0, y0, x1, y1) is the region of undistorted pixels to produce, which may
-    extend past the image (filled by replicating the border).
+    extend past the image (filled by replicating the border), up to
+    MAX_CROP_FRAMES times the image's width and height (ValueError beyond).
     """
 
     def __init__(self, camera_matrix: Any, dist_coeffs: Any, image_size: tuple[int, int],
                  crop: tuple[int, int, int, int]):
         self.image_size = tuple(int(v) for v in image_size)
         self.crop = tuple(int(v) for v in crop)
+        if not self.within_reach(self.crop, self.image_size):
+            raise ValueError(f"crop {list(self.crop)} is more than {MAX_CROP_FRAMES} times the image "
+                             f"({self.image_size[0]} x {self.image_size[1]} px) wide or high")
         k = np.asarray(camera_matrix, dtype=float)
         dist = np.asarray(dist_coeffs, dtype=float)
         x0, y0, x1, y1 = self.crop
@@ -47,6 +58,12 @@ class Undistorter:
         sx, sy = cv2.initUndistortRectifyMap(k, dist, None, shifted, (x1 - x0, y1 - y0), cv2.CV_32FC1)
         self.map1, self.map2 = cv2.convertMaps(sx, sy, cv2.CV_16SC2)
         self._source = np.stack([sx, sy], -1)
+
+    @staticmethod
+    def within_reach(crop: tuple[float, float, float, float], image_size: tuple[int, int]) -> bool:
+        """True if ``crop`` is no more than MAX_CROP_FRAMES times ``image_size`` (w, h) wide and high."""
+        return bool(crop[2] - crop[0] <= MAX_CROP_FRAMES * image_size[0]
+                    and crop[3] - crop[1] <= MAX_CROP_FRAMES * image_size[1])
 
     def __call__(self, frame: np.ndarray) -> np.ndarray:
         """The undistorted crop of ``frame`` (same dtype and channels)."""

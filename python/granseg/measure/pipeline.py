@@ -390,15 +390,18 @@ class _FrameWorker:
         self.bed_rows = (int(np.ceil(y0)) - self.crop[1], int(np.floor(y1)) - self.crop[1])  # in the crop
         self.exp, self.size, self.describe, self.reduce = exp, image_size, describe, reduce
         reduced_size = (image_size[0] // reduce, image_size[1] // reduce)
+        outside = ValueError(f"{exp.path}: field 'window': {list(full.window)} is outside the image "
+                             f"({image_size[0]} x {image_size[1]} px) once undistorted with its "
+                             "'camera_matrix' and 'dist_coeffs'")
+        if not Undistorter.within_reach(self.crop, reduced_size):  # too large to be seen, or tabled
+            raise outside
         self.undistort = Undistorter(exp.camera_matrix, exp.dist_coeffs, reduced_size, self.crop)
         self.templates: Templates | None = None
         self.spots: np.ndarray | None = None  # where glossy spheres show the lamps (classify.learn_spots)
         self.first: tuple[FrameSpheres, np.ndarray] | None = None  # the first frame's spheres and crop
         self.exposure = Exposure(0.0)  # none matched until surveyed
         if not self.undistort.inside_image(exp.window):
-            raise ValueError(f"{exp.path}: field 'window': {list(full.window)} is outside the image "
-                             f"({image_size[0]} x {image_size[1]} px) once undistorted with its "
-                             "'camera_matrix' and 'dist_coeffs'")
+            raise outside
         self.reach = self._reach()
 
     def _reach(self) -> tuple[float, float]:
