@@ -11,7 +11,8 @@ drawn, granseg must
   ``granseg CMD: error: ...``;
 - name the file (and the field or key, where one is at fault) in the error;
 - never run a pickle from a map file, never take longer than :data:`HANG_S` on these small inputs
-  (a watchdog ends the process with a traceback at :data:`WATCHDOG_S`, instead of a silent hang).
+  (a watchdog ends the process with every thread's traceback on the run's stderr when one call
+  reaches :data:`WATCHDOG_S`, instead of a silent hang).
 
 Two profiles, registered here: ``fuzz-fast`` (the default, what CI runs: the whole file in well
 under 3 minutes on 2 cores) and ``fuzz-long`` (``GRANSEG_FUZZ=long``: 25x the examples). Known open
@@ -28,6 +29,7 @@ import io
 import json
 import os
 import shutil
+import sys
 import tempfile
 import time
 import warnings
@@ -80,12 +82,16 @@ VALUE_CLASSES = {"zero", "negative", "nan", "inf", "-inf", "huge-int", "huge-flo
                  "numpy-int", "path-missing"}
 
 
+_WATCHDOG_FILE: int | None = None  # where the watchdog writes: the run's stderr, set for the module
+
+
 @pytest.fixture(autouse=True, scope="module")
-def _watchdog():
-    """A hang ends the run with every thread's traceback instead of blocking CI."""
-    faulthandler.dump_traceback_later(WATCHDOG_S, repeat=True, exit=True)
+def _watchdog(terminal_stderr):
+    """Where a hang's tracebacks go (:func:`call` arms the watchdog), and the counts at the end."""
+    global _WATCHDOG_FILE
+    _WATCHDOG_FILE = terminal_stderr
     yield
-    faulthandler.cancel_dump_traceback_later()
+    _WATCHDOG_FILE = None
     if KNOWN_HITS or STRAY_WARNINGS or TYPE_ERRORS:
         print(f"\nfuzz: known open bugs hit {dict(KNOWN_HITS)}\nstray warnings {dict(STRAY_WARNINGS)}\n"
               f"TypeErrors of wrong-typed API arguments {dict(TYPE_ERRORS)}")
@@ -137,6 +143,9 @@ def call(fn, *args, **kwargs) -> tuple[Any, BaseException | None]:
     """Run ``fn``; return (result, exception), with warnings recorded (never raised) and timed."""
     t0 = time.perf_counter()
     result, error = None, None
+    # a call that hangs ends the run with every thread's traceback instead of
+    # blocking CI (armed per call: the long profile's module runs for hours)
+    faulthandler.dump_traceback_later(WATCHDOG_S, exit=True, file=_WATCHDOG_FILE or sys.stderr)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         try:
@@ -145,6 +154,8 @@ def call(fn, *args, **kwargs) -> tuple[Any, BaseException | None]:
             raise
         except BaseException as exc:  # noqa: BLE001 - the point: see everything
             error = exc
+        finally:
+            faulthandler.cancel_dump_traceback_later()
     took = time.perf_counter() - t0
     assert took < HANG_S, f"{getattr(fn, '__name__', fn)} took {took:.0f} s on a small input (a hang?)"
     for w in caught:
