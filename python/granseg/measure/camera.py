@@ -21,10 +21,12 @@ log = logging.getLogger(__name__)
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp")
 
 
-# How many frames wide and high a crop may be. What the sensor sees reaches
-# less than a frame beyond it once undistorted, even through a wide-angle lens,
-# so a larger crop holds pixels no lens shows; its tables (28 bytes a pixel)
-# are refused before they are allocated (a window of 2e6 px asked for 16 TB).
+# How many frames wide and high a crop may be. Undistorted, what the sensor
+# sees is little wider than the frame: 1.3 frames through the GoPro-like lens
+# of granseg.synth.scenes.WIDE_ANGLE at a focal length of 0.8 frame widths
+# (wider angles fold OpenCV's polynomial model). A larger crop holds pixels no
+# lens shows; its tables (28 bytes a pixel) are refused before they are
+# allocated (a mistyped window of 2e6 px asked for 16 TB).
 MAX_CROP_FRAMES = 3
 
 
