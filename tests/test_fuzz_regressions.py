@@ -129,6 +129,23 @@ def test_a_window_far_larger_than_the_frames_is_named_before_any_table(tmp_path,
     Undistorter(np.eye(3), np.zeros(5), (405, 415), (-405, -415, 810, 830))  # three frames: tabled
 
 
+def test_a_smoothing_wider_than_the_run_is_the_run_wide_one():
+    """Was: a hang, `analyze --smooth 1000000001` looped over every shift of the window in
+    Python (the watchdog of the long fuzz profile ended it after 10 minutes). Shifts beyond
+    the run's middle reach no row; in a subprocess, so that a regression fails instead of hanging."""
+    r = _run("""
+        import numpy as np
+        from granseg.maps import moving_average
+        x = np.arange(14.0).reshape(7, 2) ** 2
+        gaps = x.copy()
+        gaps[3, 1] = np.nan
+        for a in (x, gaps):
+            assert np.array_equal(moving_average(a, 10**15 + 1), moving_average(a, 7), equal_nan=True)
+        print("same")
+    """)
+    assert r.returncode == 0 and r.stdout.strip() == "same", r.stderr[-2000:]
+
+
 def test_a_quality_record_whose_checks_are_not_objects_is_named(tmp_path):
     """Was: AttributeError ("'int' object has no attribute 'items'") from Map.failed_checks."""
     for checks in ("5", "[1, 2]", '{"a": 3}'):

@@ -104,6 +104,9 @@ def _centred_mean(a: np.ndarray, half: int) -> np.ndarray:
     per shift (this runs for every model map of every fit).
     """
     n_rows = a.shape[0]
+    # no row has more than (N - 1) // 2 neighbours either side: a wider window
+    # (a smoothing of 10**9 frames asked for) would only loop over empty shifts
+    half = min(half, max(n_rows - 1, 0) // 2)
     finite = np.isfinite(a)
     if finite.all():  # model maps: the count is 2 h(i) + 1, no masks to carry
         total = np.zeros(a.shape)
