@@ -146,6 +146,24 @@ def test_a_smoothing_wider_than_the_run_is_the_run_wide_one():
     assert r.returncode == 0 and r.stdout.strip() == "same", r.stderr[-2000:]
 
 
+def test_densities_in_the_wrong_order_name_both_fields_and_the_map_by_its_text(tmp_path):
+    """Was: only 'rho_h' was named when 'rho_l' was the one mistyped (1e308), and a map built from
+    a file's arrays was named ``map np.str_('G-PP-50')``."""
+    import json
+
+    from fuzz_strategies import EXPERIMENT_BASE
+    from granseg.measure.experiment import load_experiment
+
+    arrays = fields()
+    arrays["name"], arrays["rho_l"] = np.str_("G-PP-50"), 1e308
+    with pytest.raises(MapFormatError) as err:
+        Map.from_arrays(arrays)
+    assert str(err.value).startswith("map 'G-PP-50': fields 'rho_h' and 'rho_l': "), err.value
+    (tmp_path / "experiment.json").write_text(json.dumps(EXPERIMENT_BASE | {"rho_l": 1e308}))
+    with pytest.raises(ValueError, match="fields 'rho_h' and 'rho_l'"):
+        load_experiment(tmp_path / "experiment.json")
+
+
 def test_a_quality_record_whose_checks_are_not_objects_is_named(tmp_path):
     """Was: AttributeError ("'int' object has no attribute 'items'") from Map.failed_checks."""
     for checks in ("5", "[1, 2]", '{"a": 3}'):

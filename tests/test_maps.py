@@ -93,7 +93,7 @@ def test_save_refuses_unknown_field(tmp_path):
         ("t", np.arange(12)[::-1] * 1.0, "'t': is not strictly increasing"),
         ("t", np.arange(11) * 1.0, "'t': length 11"),
         ("z", np.arange(14) * 1.0, "'z': length 14"),
-        ("rho_h", 500.0, "'rho_h': 500.0 < rho_l"),
+        ("rho_h", 500.0, "'rho_h' and 'rho_l': 500.0 < "),
         ("c0", 1.0, "'c0': value 1.0 outside"),
         ("M_g", -1.0, "'M_g': value -1.0 outside"),
         ("name", np.str_(" "), "'name': experiment name is empty"),

@@ -198,7 +198,7 @@ class Map(Conditions):
 
     def __post_init__(self) -> None:
         """Validate (a Map built in code obeys docs/formats.md like one read from a file)."""
-        source = str(self.path) if self.path is not None else f"map {self.name!r}"
+        source = _source(self.path, self.name)
         for key, value in _validate(source, self.to_arrays()).items():
             object.__setattr__(self, key, value)
 
@@ -207,7 +207,7 @@ class Map(Conditions):
                     extra: Mapping[str, Any] | None = None) -> Map:
         """A map from docs/formats.md's flat keys, as a file holds them (the cell constants as
         top-level keys ``H``, ``rpm``, ...; a key set to None is absent)."""
-        source = str(path) if path is not None else f"map {arrays.get('name')!r}"
+        source = _source(path, arrays.get("name"))
         return cls(**_validate(source, arrays), path=path, extra=dict(extra or {}))
 
     @property
@@ -287,6 +287,15 @@ class Campaign:
 
 
 # --------------------------------------------------------------------------- validation
+
+
+def _source(path: Path | None, name: Any) -> str:
+    """How an error names a map: its file, else ``map 'NAME'`` (a numpy string as the text it holds)."""
+    if path is not None:
+        return str(path)
+    if isinstance(name, np.ndarray) and name.ndim == 0:
+        name = name.item()
+    return f"map {str(name)!r}" if isinstance(name, str) else f"map {name!r}"
 
 
 def _fail(source: str, key: str, msg: str) -> MapFormatError:
@@ -395,7 +404,8 @@ def _validate_metadata(source: str, raw: Mapping[str, Any]) -> dict[str, Any]:
     out["rho_h"] = _scalar(source, "rho_h", raw["rho_h"], 0.0, np.inf, True)
     out["rho_l"] = _scalar(source, "rho_l", raw["rho_l"], 0.0, np.inf, True)
     if out["rho_h"] < out["rho_l"]:
-        raise _fail(source, "rho_h", f"{out['rho_h']} < rho_l = {out['rho_l']} (heavy must not be lighter)")
+        raise MapFormatError(f"{source}: fields 'rho_h' and 'rho_l': {out['rho_h']} < {out['rho_l']} "
+                             "(the heavy grains must not be the lighter)")
     out["c0"] = _scalar(source, "c0", raw["c0"], 0.0, 1.0, True)
     if out["c0"] >= 1.0:
         raise _fail(source, "c0", f"value {out['c0']} outside (0, 1)")

@@ -74,7 +74,8 @@ def _parse(p: Path, raw: dict[str, Any]) -> Experiment:
     get = _Fields(p, raw)
     rho_h, rho_l = get.number("rho_h", lo=0), get.number("rho_l", lo=0)
     if rho_h < rho_l:
-        raise ValueError(f"{p}: field 'rho_h': must be >= rho_l ({rho_h} < {rho_l})")
+        raise ValueError(f"{p}: fields 'rho_h' and 'rho_l': the heavy density must not be below the light "
+                         f"one ({rho_h} < {rho_l})")
     k = get.array("camera_matrix", (3, 3))
     if k[0, 0] <= 0 or k[1, 1] <= 0 or not np.allclose(k[2], [0, 0, 1]):
         raise ValueError(f"{p}: field 'camera_matrix': expected [[fx, 0, cx], [0, fy, cy], [0, 0, 1]] with fx, fy > 0")
