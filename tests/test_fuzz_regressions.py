@@ -164,6 +164,20 @@ def test_densities_in_the_wrong_order_name_both_fields_and_the_map_by_its_text(t
         load_experiment(tmp_path / "experiment.json")
 
 
+def test_an_output_under_a_missing_folder_is_named_as_given(tmp_path):
+    """Was: ``granseg.diagnose(report='/no/such/path.npz')`` said "/no/such: output folder does not
+    exist", naming neither the path given nor the parameter (the checks every output goes through)."""
+    from granseg._io import check_creatable, check_output_dir, check_writable
+
+    given = tmp_path / "no" / "such" / "path.npz"
+    for check in (check_writable, lambda p: check_output_dir(p, ["report.html"]), check_creatable):
+        if check is check_creatable:
+            (tmp_path / "no").write_text("a file where a folder should be")
+        with pytest.raises(OSError) as err:
+            check(given)
+        assert str(err.value).startswith(f"{given}: "), err.value
+
+
 def test_a_quality_record_whose_checks_are_not_objects_is_named(tmp_path):
     """Was: AttributeError ("'int' object has no attribute 'items'") from Map.failed_checks."""
     for checks in ("5", "[1, 2]", '{"a": 3}'):

@@ -67,25 +67,28 @@ def check_writable(path: str | os.PathLike, force: bool = False) -> Path:
         )
     if p.exists() and p.is_dir():
         raise IsADirectoryError(f"{p}: is a directory, expected a file path")
-    _check_folder(p.parent)
+    _check_folder(p.parent, p)
     return p
 
 
-def _check_folder(folder: Path) -> None:
+def _check_folder(folder: Path, file: Path | None = None) -> None:
     """The folder exists, is a folder, and a file can be created in it (tried, then removed:
-    permissions, read-only mounts and pseudo file systems all answer the same way)."""
+    permissions, read-only mounts and pseudo file systems all answer the same way). The error
+    names ``file`` first when the folder is to hold it (an output file, or an output folder
+    not made yet): the path the caller gave."""
+    said = f"{file}: folder {folder}" if file is not None else f"{folder}: output folder"
     if not folder.exists():
         if any(parent.is_file() for parent in folder.parents):
             bad = next(parent for parent in folder.parents if parent.is_file())
-            raise NotADirectoryError(f"{folder}: cannot be an output folder, {bad} is a file")
-        raise FileNotFoundError(f"{folder}: output folder does not exist")
+            raise NotADirectoryError(f"{said} cannot be made, {bad} is a file (not a directory)")
+        raise FileNotFoundError(f"{said} does not exist")
     if not folder.is_dir():
-        raise NotADirectoryError(f"{folder}: is a file, not a directory")
+        raise NotADirectoryError(f"{said} is a file, not a directory")
     try:
         with tempfile.TemporaryFile(dir=folder, prefix=".granseg-probe."):
             pass
     except OSError as exc:
-        raise PermissionError(f"{folder}: cannot create a file there ({exc.strerror or exc})") from None
+        raise PermissionError(f"{said}: cannot create a file there ({exc.strerror or exc})") from None
 
 
 def check_creatable(folder: str | os.PathLike) -> Path:
@@ -97,7 +100,7 @@ def check_creatable(folder: str | os.PathLike) -> Path:
         existing = existing.parent
     if existing != folder and existing.is_file():
         raise NotADirectoryError(f"{folder}: cannot be made, {existing} is a file")
-    _check_folder(existing)
+    _check_folder(existing, None if existing == folder else folder)
     return folder
 
 
@@ -112,7 +115,10 @@ def check_output_dir(out: str | os.PathLike, names: Sequence[str], force: bool =
     out = Path(out)
     if out.exists() and not out.is_dir():
         raise NotADirectoryError(f"{out}: exists and is not a directory")
-    _check_folder(out if out.exists() else out.parent)
+    if out.exists():
+        _check_folder(out)
+    else:
+        _check_folder(out.parent, out)
     clash = [n for n in names if (out / n).exists() or (out / n).is_symlink()]
     if clash and not force:
         raise OutputExistsError(f"{out}: already holds {clash}; pass force=True (CLI: --force)")
