@@ -20,8 +20,9 @@ threads would give (the rate after each run's fixed part, summed).
 decoded beforehand): the figure a change to the per-frame code moves.
 ``--stages`` times the frame worker's largest steps (:data:`STAGES`) in one
 process, round by round: what a change to one step saves, which the host's
-drift between two whole runs can hide. ``--reduce K [K ...]`` times the analysis of the frames reduced K times
-(analyze's ``reduce``; default its own choice) for each K, taking turns:
+drift between two whole runs can hide. ``--reduce K [K ...]`` times the
+analysis of the frames reduced K times (analyze's ``reduce``; default its own
+choice) for each K, taking turns:
 
     PYTHONPATH=python python benches/bench_measure.py --frames 120 --diameter 80 --dir DIR --reduce 1 2 --frame-worker
 
