@@ -364,11 +364,17 @@ def run_cli(argv: list[str]) -> tuple[int, str]:
     return rc, err.getvalue()
 
 
-def check_cli(recipe: fs.Recipe, command: str, rc: Any, err: str, known: str | None = None) -> None:
-    """Exit 0, 1, 2 (or 130); a failure ends in one line 'granseg CMD: error: ...'; never 4."""
+def check_cli(recipe: fs.Recipe, command: str, rc: Any, err: str, known: str | None = None,
+              strict: bool = False) -> None:
+    """Exit 0, 1, 2 (or 130); a failure ends in one line 'granseg CMD: error: ...'; never 4. With
+    ``strict`` (`analyze --strict`), also 3 where the map was written and stderr says it failed a
+    quality check (the README's table of exit statuses)."""
     problem = None
     lines = [ln for ln in err.splitlines() if ln.strip()]
-    if rc not in (0, 1, 2, 130):
+    if strict and rc == 3:
+        if "*** WARNING: this map failed" not in err:
+            problem = "exit 3 without saying which quality check failed"
+    elif rc not in (0, 1, 2, 130):
         problem = f"exit code {rc!r}"
     elif "Traceback" in err:
         problem = "a traceback on stderr"
@@ -518,7 +524,7 @@ def _cli_test(command: str, n: int):
             known = _known_cli(command, recipe.args["chosen"], argv)
             if command == "diagnose" and recipe.target in ("campaign",):
                 known = known or "diagnose-layers"
-            check_cli(recipe, command, rc, err, known=known)
+            check_cli(recipe, command, rc, err, known=known, strict=command == "analyze" and "--strict" in argv)
 
     test.__name__ = f"test_cli_{command.replace('-', '_')}_never_ends_in_an_internal_error"
     return test

@@ -6,6 +6,7 @@ regression fails one test instead of killing the run."""
 from __future__ import annotations
 
 import os
+import re
 import subprocess
 import sys
 import textwrap
@@ -127,6 +128,24 @@ def test_a_window_far_larger_than_the_frames_is_named_before_any_table(tmp_path,
     with pytest.raises(ValueError, match="more than 3 times the image"):
         Undistorter(np.eye(3), np.zeros(5), (405, 415), (0, 0, 1216, 100))
     Undistorter(np.eye(3), np.zeros(5), (405, 415), (-405, -415, 810, 830))  # three frames: tabled
+
+
+@pytest.mark.parametrize("fields, words", [({"t0": 1e308}, "2 s apart from t0 = 1e+308 s"),
+                                          ({"t0": 1.0, "fps": 1e300}, "1e-300 s apart from t0 = 1 s")])
+def test_a_first_frame_time_that_leaves_no_room_between_rows_is_named_before_any_frame(tmp_path, fields, words):
+    """Was: t0 = 1e308 s in experiment.json gave every row one time, and only saving the map
+    after the whole analysis said so, naming the map's field 't' (the long fuzz profile, seed 7331)."""
+    import json
+
+    from fuzz_strategies import EXPERIMENT_BASE
+    from granseg.cli import main
+    from granseg.measure import analyze
+
+    (tmp_path / "frame_0000.png").write_bytes(b"never read")  # read only after the check
+    (tmp_path / "experiment.json").write_text(json.dumps(EXPERIMENT_BASE | fields))
+    with pytest.raises(ValueError, match=r"experiment.json: fields 't0' and 'fps': frames " + re.escape(words)):
+        analyze(tmp_path, save=False, progress=False)
+    assert main(["analyze", str(tmp_path), "--no-progress"]) == 2
 
 
 def test_a_smoothing_wider_than_the_run_is_the_run_wide_one():

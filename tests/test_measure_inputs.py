@@ -84,6 +84,51 @@ def test_maps_go_into_a_campaign_folder_with_smoothing_in_seconds(frames, tmp_pa
         frames_for_seconds(-1, 1.0)
 
 
+def test_every_nth_frame_gives_the_rows_of_those_frames(tmp_path, capsys):
+    """`--every N` analyses frames 0, N, 2N... of a frames folder or a video alone: the same
+    counts as those rows of the whole run, rows N / fps apart, and the detections name the
+    recording's frames."""
+    import csv
+
+    from granseg.maps import load_map
+
+    d = tmp_path / "run"
+    render_frames(_map(7), seed=3, out_dir=d, **SMALL)
+    fps = json.loads((d / "experiment.json").read_text())["fps"]
+    whole = analyze(d, save=False, progress=False)
+    video = tmp_path / "vid" / "run.avi"
+    video.parent.mkdir()
+    images = [cv2.imread(str(p)) for p in sorted(d.glob("*.png"))]
+    writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"FFV1"), 30.0, images[0].shape[1::-1])
+    for img in images:
+        writer.write(img)
+    writer.release()
+    (video.parent / "experiment.json").write_text((d / "experiment.json").read_text())
+    for source in (d, video):
+        third = analyze(source, every=3, save=False, progress=False)
+        assert np.array_equal(third.n, whole.n[::3]) and np.array_equal(third.n_heavy, whole.n_heavy[::3])
+        assert np.allclose(third.t, whole.t[::3]) and third.every == 3
+        assert third.quality.figures["frames_every"] == 3 and whole.quality.figures["frames_every"] == 1
+    assert analyze(d, every=99, save=False, progress=False).n.shape == (1, 15)  # the first frame alone
+    assert main(["analyze", str(d), "--every-seconds", str(2.2 / fps), "--detections", str(tmp_path / "det.csv"),
+                 "--no-progress"]) == 0
+    assert "one frame in 2 analysed" in capsys.readouterr().out
+    m = load_map(d / "map.npz")
+    assert m.c.shape == (4, 15) and np.isclose(m.fps, fps / 2) and np.allclose(m.t, whole.t[::2])
+    with open(tmp_path / "det.csv", newline="") as f:
+        assert sorted({int(r["frame"]) for r in csv.DictReader(f)}) == [0, 2, 4, 6]
+    for bad, message in ((0, "every .CLI --every.: expected a whole number >= 1"),
+                         (2.5, "every .CLI --every."), (True, "every .CLI --every.")):
+        with pytest.raises(ValueError, match=message):
+            analyze(d, every=bad, save=False, progress=False)
+    for bad in (0, -1.0, float("nan"), "3", True):
+        with pytest.raises(ValueError, match="every_seconds .CLI --every-seconds.: expected a duration > 0 s"):
+            analyze(d, every_seconds=bad, save=False, progress=False)
+    with pytest.raises(SystemExit):
+        main(["analyze", str(d), "--every", "2", "--every-seconds", "5", "--no-progress"])
+    assert "not allowed with" in capsys.readouterr().err
+
+
 @pytest.mark.parametrize("damage, message", [
     (lambda p: p.write_bytes(b""), "empty file"),
     (lambda p: p.write_bytes(p.read_bytes()[:2000]), "truncated PNG"),

@@ -29,6 +29,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     smooth.add_argument("--smooth-seconds", metavar="S", type=float,
                         help="the same average over S seconds of recording (the odd frame count nearest "
                              "S x fps)")
+    every = p.add_mutually_exclusive_group()
+    every.add_argument("--every", metavar="N", type=int, default=1,
+                       help="analyse every N-th frame, the first included (default 1: all); the map's rows are "
+                            "then N frames apart, and --smooth-frames counts them")
+    every.add_argument("--every-seconds", metavar="S", type=float,
+                       help="the same as a time: one frame each S seconds of recording (the whole frame count "
+                            "nearest S x fps)")
     p.add_argument("--preview", metavar="DIR", help="write annotated preview images to DIR")
     p.add_argument("--preview-count", metavar="K", type=int, default=6,
                    help="number of preview frames spread over the run (default 6)")
@@ -61,14 +68,17 @@ def run(args: argparse.Namespace) -> int:
         warnings.simplefilter("always", BadFrameWarning)
         warnings.simplefilter("ignore", QualityWarning)  # the report below says it, in full
         result = analyze(args.path, out=args.out, smooth=args.smooth, smooth_seconds=args.smooth_seconds,
-                         preview=args.preview,
+                         every=args.every, every_seconds=args.every_seconds, preview=args.preview,
                          preview_count=args.preview_count, force=args.force,
                          workers=args.workers, progress=not args.no_progress, detections=args.detections,
                          ends_unmixed=args.ends_unmixed, reduce=args.reduce)
     for w in caught:
         print(f"warning: {w.message}")
     good = len(result.frame_names) - len(result.bad_frames)
+    step = float(result.t[1] - result.t[0]) if len(result.t) > 1 else 0.0
     print(f"{len(result.frame_names)} frames, {good} analysed, {len(result.bad_frames)} bad frames")
+    if result.every > 1:
+        print(f"one frame in {result.every} analysed: the map's rows are {step:.4g} s apart")
     print(f"spheres per frame in the window: {result.n.sum(axis=1)[result.n.sum(axis=1) > 0].mean():.1f}")
     reduced = result.quality.figures.get("frames_reduced", 1)
     if reduced > 1:
@@ -110,7 +120,6 @@ def run(args: argparse.Namespace) -> int:
     if figures.get("y_by_own_symmetry"):  # a kind of sphere whose outline fit stays where it starts
         print(f"{100 * figures['y_by_own_symmetry']:.0f} % of the spheres placed up and down where their own "
               "look is symmetric: their outline gives the fit nothing to hold to (transparent spheres)")
-    step = float(result.t[1] - result.t[0]) if len(result.t) > 1 else 0.0
     print(f"map written to {result.out} (smoothing: {result.smoothing_frames} frames = "
           f"{result.smoothing_frames * step:.4g} s of recording)")
     if result.detections is not None:

@@ -114,7 +114,8 @@ class Analysis:
     spheres: per frame, FrameSpheres or None for a bad frame;
     bad_frames: list of (frame name, problem); out: the map file written (or None);
     quality: the checks of :mod:`granseg.measure.quality` (also stored in the map);
-    classes: the learned heavy / light classifier (None with colour ranges).
+    classes: the learned heavy / light classifier (None with colour ranges);
+    every: the map's row i is the recording's frame i x every.
     """
 
     c: np.ndarray
@@ -133,6 +134,7 @@ class Analysis:
     quality: Quality | None = None
     classes: MaterialClasses | None = None
     detections: Path | None = None
+    every: int = 1
 
 
 def analyze(
@@ -141,6 +143,8 @@ def analyze(
     out: str | os.PathLike | None = None,
     smooth: int = 5,
     smooth_seconds: float | None = None,
+    every: int = 1,
+    every_seconds: float | None = None,
     preview: str | os.PathLike | None = None,
     preview_count: int = 6,
     force: bool = False,
@@ -162,9 +166,19 @@ def analyze(
         receives ``NAME.npz`` named after the experiment, so several recordings
         analysed into one folder make a campaign; a missing folder is created.
     smooth : width N [frames] of the centred moving average giving ``c`` from
-        ``c_raw`` (odd; 1 = none); recorded as ``smoothing_frames``.
+        ``c_raw`` (odd; 1 = none); recorded as ``smoothing_frames``. Frames
+        analysed: with ``every``, N map rows.
     smooth_seconds : the same width as a time [s] instead: N is the odd number of
-        frames nearest to ``smooth_seconds * fps`` (at least 1). Overrides ``smooth``.
+        map rows nearest to ``smooth_seconds`` times their rate (at least 1).
+        Overrides ``smooth``.
+    every : analyse every ``every``-th frame of the recording, the first
+        included (1: all); the others are not read (a video's are decoded,
+        as a stream must be, but not converted). The map's rows are then
+        ``every / fps`` apart and its ``fps`` is ``fps / every``: an hour
+        filmed at 30 fps holds 108 000 frames, where the segregation
+        changes over minutes.
+    every_seconds : the same as a time [s]: ``every`` is the whole number of
+        frames nearest to ``every_seconds * fps`` (at least 1). Overrides ``every``.
     preview : directory for annotated preview PNGs of ``preview_count`` frames
         spread over the run (first and last included).
     force : replace existing output files.
@@ -200,11 +214,17 @@ def analyze(
     _check_count("workers", workers, 1, allow_none=True)
     _check_count("preview_count", preview_count, 1)
     _check_count("reduce", reduce, 1, allow_none=True)
+    _check_count("every", every, 1)
     source, exp_path = open_frames(path)
     exp = load_experiment(exp_path)
     reduce = analysis_reduction(exp.particle_diameter_px) if reduce is None else int(reduce)
     seen = _reduced_experiment(exp, reduce)
     fps = _frame_rate(exp, source)
+    if every_seconds is not None:
+        every = frames_every(every_seconds, fps)
+    source.keep_every(int(every))
+    fps /= int(every)  # the map's rows per second
+    _check_times(exp, fps, len(source))
     if smooth_seconds is not None:
         smooth = frames_for_seconds(smooth_seconds, fps)
     out_path = map_path(out, exp.name, exp_path.parent)
@@ -224,7 +244,7 @@ def analyze(
     classes = _classify(spheres, seen, crops, spots, ends_unmixed)
     shift = _level_classes(spheres, seen)
     reduced = _assemble(spheres, seen, fps, smooth, names, bad)
-    reduced.classes = classes
+    reduced.classes, reduced.every = classes, int(every)
     reduced.quality = _assess(reduced, shift, reduce)
     result = _in_frame_pixels(reduced, exp, reduce)
     if not result.quality.ok:
@@ -334,10 +354,24 @@ def _check_count(name: str, value: Any, least: int, allow_none: bool = False) ->
 def frames_for_seconds(seconds: float, fps: float) -> int:
     """The odd number of frames (>= 1) nearest to ``seconds`` of recording at ``fps``: what a
     smoothing window given in time means for a centred moving average."""
-    if isinstance(seconds, bool) or not np.isfinite(float(seconds)) or float(seconds) < 0:
-        raise ValueError(f"smooth_seconds: expected a duration >= 0 s, got {seconds!r}")
-    n = float(seconds) * fps
+    n = _seconds("smooth_seconds", seconds, 0.0) * fps
     return max(1, 2 * int(np.floor(n / 2)) + 1)
+
+
+def frames_every(seconds: float, fps: float) -> int:
+    """The whole number of frames (>= 1) nearest to ``seconds`` of recording at ``fps``: how many
+    frames apart the frames analysed lie when the interval is given in time."""
+    return max(1, int(np.rint(_seconds("every_seconds", seconds) * fps)))
+
+
+def _seconds(name: str, value: Any, least: float | None = None) -> float:
+    """A duration argument [s]: finite and > 0 (>= ``least`` when given); ValueError naming it."""
+    number = isinstance(value, int | float | np.integer | np.floating) and not isinstance(value, bool | np.bool_)
+    if not number or not np.isfinite(value) or (value < least if least is not None else value <= 0):
+        cli = "--" + name.replace("_", "-")
+        bound = f">= {least:g}" if least is not None else "> 0"
+        raise ValueError(f"{name} (CLI {cli}): expected a duration {bound} s, got {value!r}")
+    return float(value)
 
 
 def map_path(out: str | os.PathLike | None, name: str, beside: Path) -> Path:
@@ -359,6 +393,16 @@ def _frame_rate(exp: Experiment, source: FrameDirectory | VideoFrames) -> float:
     if not fps or fps <= 0:
         raise ValueError(f"{exp.path}: missing field 'fps' (frames per second)")
     return float(fps)
+
+
+def _check_times(exp: Experiment, fps: float, n: int) -> None:
+    """Refuse, before any frame is read, a ``t0`` so large that rows ``1 / fps`` apart get one time
+    (t0 = 1e308 s: the map's t would not increase, and only saving it would tell). Doubles lie
+    furthest apart at the last row's time: rows 1 / fps apart stay apart if twice that gap is less."""
+    last = exp.t0 + max(n - 1, 1) / fps
+    if not np.isfinite(last) or 2 * np.spacing(last) >= 1 / fps:
+        raise ValueError(f"{exp.path}: fields 't0' and 'fps': frames {1 / fps:.3g} s apart from t0 = {exp.t0:g} s "
+                         "do not get distinct times (t0 is the time of the first frame since the plate started)")
 
 
 def _preview_indices(n: int, count: int) -> set[int]:
@@ -674,7 +718,7 @@ def _check_video_length(source, names, results) -> None:
         log.warning("%s: stream ends after %d of %d frames (truncated?)",
                     source.path, source.decoded, source.expected)
         del names[source.decoded:]
-        names.extend(f"{source.path.name}#{i}" for i in range(source.decoded, source.expected))
+        names.extend(source.name(i) for i in range(source.decoded, source.expected))
 
 
 # --------------------------------------------------------------------------- pass 2: classes
@@ -781,6 +825,7 @@ def _level_classes(spheres: list[FrameSpheres | None], exp: Experiment) -> tuple
 
 
 def _assess(result: Analysis, shift: tuple[float, int] = (0.0, 0), reduce: int = 1) -> Quality:
+    """The quality record of ``result`` (analysed in frames reduced ``reduce`` times)."""
     good = [s for s in result.spheres if s is not None]
     first = good[0]
     learned = result.classes is not None
@@ -806,6 +851,7 @@ def _assess(result: Analysis, shift: tuple[float, int] = (0.0, 0), reduce: int =
         light_contrast=result.classes.field.contrast() if learned and result.classes.field is not None else None,
         light_share=result.classes.light_share if learned else None,
         frames_reduced=reduce,
+        frames_every=result.every,
     )
 
 
@@ -834,7 +880,8 @@ DETECTION_COLUMNS = ("frame", "x", "y", "r", "class", "p_heavy", "layer")
 def write_detections(path: str | os.PathLike, result: Analysis, force: bool = False) -> Path:
     """Write every counted sphere as a CSV row: frame, x, y, r, class, p_heavy, layer.
 
-    frame: the frame's index (0 = first, in name order); x, y: centre
+    frame: the frame's index in the recording (0 = first, in name order;
+    analysed with ``every``, the map's row i is frame i x every); x, y: centre
     [undistorted px, y down]; r: radius [px]; class: ``heavy`` or ``light``;
     p_heavy: the learned probability of being heavy (empty with explicit
     colour ranges); layer: 0 at the bottom wall. Written atomically; an
@@ -852,7 +899,7 @@ def write_detections(path: str | os.PathLike, result: Analysis, force: bool = Fa
             layer = layer_index(s.y, result.experiment.window)
             p = s.p_heavy if s.p_heavy is not None else [None] * len(s.x)
             for x, y, r, h, ph, j in zip(s.x, s.y, s.r, s.heavy, p, layer, strict=True):
-                w.writerow([i, f"{x:.2f}", f"{y:.2f}", f"{r:.2f}", "heavy" if h else "light",
+                w.writerow([i * result.every, f"{x:.2f}", f"{y:.2f}", f"{r:.2f}", "heavy" if h else "light",
                             "" if ph is None else f"{ph:.4f}", int(j)])
     return path
 

@@ -20,18 +20,29 @@ IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
 
 
 class FrameDirectory:
-    """Still images (PNG or JPEG) in a directory, in name order; decoded on demand (thread-safe)."""
+    """Still images (PNG or JPEG) in a directory, in name order; decoded on demand (thread-safe).
+
+    ``every``: frame i is the directory's image i x every (:meth:`keep_every`; 1, all of them).
+    """
 
     def __init__(self, directory: Path):
         if not directory.is_dir():
             raise FileNotFoundError(f"{directory}: frames directory not found")
         self.directory = directory
-        self.files = sorted(p for p in directory.iterdir()
-                            if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES)
+        self.all_files = sorted(p for p in directory.iterdir()
+                                if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES)
+        self.files = self.all_files
         if not self.files:
             raise ValueError(f"{directory}: no PNG or JPEG frames in the directory")
         self.names = [p.name for p in self.files]
         self.fps: float | None = None
+        self.every = 1
+
+    def keep_every(self, every: int) -> None:
+        """Keep every ``every``-th image, the first included; the others are never read."""
+        self.files = self.all_files[::every]
+        self.names = [p.name for p in self.files]
+        self.every = every
 
     def __len__(self) -> int:
         return len(self.files)
@@ -149,21 +160,36 @@ def _check_complete(path: Path, data: bytes) -> None:
 
 
 class VideoFrames:
-    """Frames of a video file, decoded in order by OpenCV's VideoCapture."""
+    """Frames of a video file, decoded in order by OpenCV's VideoCapture.
+
+    ``every``: frame i is the stream's frame i x every (:meth:`keep_every`; 1, all of them); the
+    frames between are only grabbed, not converted. ``expected`` is how many of those frames the
+    header announces, ``decoded`` how many the last full read found (None before one).
+    """
 
     def __init__(self, path: Path):
         if not path.is_file():
             raise FileNotFoundError(f"{path}: video file not found")
         cap = cv2.VideoCapture(cv2_path(path))
         ok = cap.isOpened()
-        self.expected = int(cap.get(cv2.CAP_PROP_FRAME_COUNT)) if ok else 0
+        self.in_stream = max(int(cap.get(cv2.CAP_PROP_FRAME_COUNT)), 0) if ok else 0
         self.fps = float(cap.get(cv2.CAP_PROP_FPS)) if ok else None
         cap.release()
         if not ok:
             raise ValueError(f"{path}: not a video OpenCV can open")
         self.path = path
         self.decoded: int | None = None
-        self.names = [f"{path.name}#{i}" for i in range(max(self.expected, 0))]
+        self.keep_every(1)
+
+    def keep_every(self, every: int) -> None:
+        """Keep every ``every``-th frame of the stream, the first included."""
+        self.every = every
+        self.expected = -(-self.in_stream // every)
+        self.names = [self.name(i) for i in range(self.expected)]
+
+    def name(self, i: int) -> str:
+        """Frame ``i``'s name: the file's, then the frame's place in the stream."""
+        return f"{self.path.name}#{i * self.every}"
 
     def __len__(self) -> int:
         return len(self.names)
@@ -174,11 +200,13 @@ class VideoFrames:
         i = 0
         try:
             while True:
+                if i and not _skipped(cap, self.every - 1):
+                    break
                 ok, img = cap.read()
                 if not ok:
                     break
                 if i >= len(self.names):
-                    self.names.append(f"{self.path.name}#{i}")
+                    self.names.append(self.name(i))
                 yield i, img
                 i += 1
         finally:
@@ -193,7 +221,7 @@ class VideoFrames:
         cap = cv2.VideoCapture(cv2_path(self.path))
         try:
             for i in range(max(indices, default=-1) + 1):
-                if not cap.grab():
+                if (i and not _skipped(cap, self.every - 1)) or not cap.grab():
                     break
                 if i in indices:
                     ok, img = cap.retrieve()
@@ -201,6 +229,11 @@ class VideoFrames:
                         yield i, reduce_frame(img, reduce)
         finally:
             cap.release()
+
+
+def _skipped(cap: cv2.VideoCapture, n: int) -> bool:
+    """Pass over the stream's next ``n`` frames (grabbed, not converted); False where it ends first."""
+    return all(cap.grab() for _ in range(n))
 
 
 def open_frames(path: str | os.PathLike) -> tuple[FrameDirectory | VideoFrames, Path]:

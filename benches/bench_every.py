@@ -1,0 +1,91 @@
+"""How fast ``granseg analyze --every N`` gets through a video filmed in real time.
+
+    PYTHONPATH=python python benches/bench_every.py [--seconds 20] [--every 1 10 30] [--dir DIR]
+
+Renders 37 frames of the throughput bench's look (granseg.synth, steel/PP, 1920 x 1440, D = 38
+px) once, writes them over and over as an MPEG-4 video of ``--seconds`` at 30 fps (37 is
+prime, so no stride lands on one rendered frame only), and times ``analyze(video, every=N)``
+on two workers for each N, taking turns over ``--repeat`` rounds (best of them). It also times
+reading the stream through without converting a frame (``grab`` only): the least any stride
+can take, since a compressed stream's frames must all be decoded in order. Prints, for each N,
+the recording's frames got through per second and the frames analysed per second.
+"""
+
+from __future__ import annotations
+
+import argparse
+import tempfile
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from granseg._io import cv2_path
+from granseg.measure import analyze
+from granseg.synth import render_frames
+
+RENDERED = 37
+PLAYBACK_FPS = 30.0
+
+
+def _video(d: Path, seconds: float) -> Path:
+    """``d``/run.mp4 (with experiment.json beside it): the rendered frames in turn for ``seconds``."""
+    video = d / "run.mp4"
+    if video.exists():
+        return video
+    c = np.zeros((RENDERED, 15))
+    c[:, 8:] = 1.0
+    c[1:] = 0.5
+    frames = render_frames(c, heavy="steel", light="pp", particle_diameter_px=38.0, image_size=(1920, 1440),
+                           out_dir=d / "frames", force=True, experiment={"fps": None})
+    writer = cv2.VideoWriter(cv2_path(video), cv2.VideoWriter_fourcc(*"mp4v"), PLAYBACK_FPS, (1920, 1440))
+    for i in range(int(seconds * PLAYBACK_FPS)):
+        writer.write(frames.images[i % RENDERED])
+    writer.release()
+    (d / "experiment.json").write_text((d / "frames" / "experiment.json").read_text())
+    return video
+
+
+def grab_seconds(video: Path) -> tuple[int, float]:
+    """Frames in the stream and the seconds it takes to grab them all (decoded, not converted)."""
+    cap = cv2.VideoCapture(cv2_path(video))
+    start, n = time.perf_counter(), 0
+    while cap.grab():
+        n += 1
+    cap.release()
+    return n, time.perf_counter() - start
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--seconds", type=float, default=20.0, help="length of the video at 30 fps [s]")
+    ap.add_argument("--every", type=int, nargs="+", default=[1, 10, 30])
+    ap.add_argument("--repeat", type=int, default=2)
+    ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--dir", type=Path, default=None, help="keep (or reuse) the video here")
+    args = ap.parse_args()
+    with tempfile.TemporaryDirectory() as tmp:
+        d = args.dir if args.dir is not None else Path(tmp)
+        d.mkdir(parents=True, exist_ok=True)
+        video = _video(d, args.seconds)
+        best = dict.fromkeys(args.every, np.inf)
+        grab = np.inf
+        for _ in range(args.repeat):
+            n, took = grab_seconds(video)
+            grab = min(grab, took)
+            for k in args.every:  # taking turns, so that a busier spell hits each alike
+                start = time.perf_counter()
+                a = analyze(video, every=k, save=False, progress=False, workers=args.workers)
+                best[k] = min(best[k], time.perf_counter() - start)
+                assert len(a.t) == -(-n // k)
+    print(f"MPEG-4 video, {n} frames of 1920 x 1440 at {PLAYBACK_FPS:g} fps ({n / PLAYBACK_FPS:g} s), "
+          f"{args.workers} workers, best of {args.repeat}")
+    print(f"  grabbing the stream alone: {grab:.2f} s, {n / grab:.0f} frames/s")
+    for k, took in best.items():
+        print(f"  --every {k:>3}: {took:.2f} s, {n / took:.0f} recording frames/s "
+              f"({n / took / PLAYBACK_FPS:.1f} x real time), {-(-n // k) / took:.1f} frames analysed/s")
+
+
+if __name__ == "__main__":
+    main()
