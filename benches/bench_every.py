@@ -1,10 +1,12 @@
 """How fast ``granseg analyze --every N`` gets through a video filmed in real time.
 
-    PYTHONPATH=python python benches/bench_every.py [--seconds 20] [--every 1 10 30] [--dir DIR]
+    PYTHONPATH=python python benches/bench_every.py [--seconds 20] [--every 1 10 30] [--codec mp4v] [--dir DIR]
 
 Renders 37 frames of the throughput bench's look (granseg.synth, steel/PP, 1920 x 1440, D = 38
-px) once, writes them over and over as an MPEG-4 video of ``--seconds`` at 30 fps (37 is
-prime, so no stride lands on one rendered frame only), and times ``analyze(video, every=N)``
+px) once, writes them over and over as a video of ``--seconds`` at 30 fps (37 is prime, so no
+stride lands on one rendered frame only; ``--codec``: ``mp4v``, MPEG-4 Part 2 by OpenCV, or
+``h264`` by PyAV with a key frame every 15 frames, as a GoPro, the renderer's own encoder), and
+times ``analyze(video, every=N)``
 on two workers for each N, taking turns over ``--repeat`` rounds (best of them). It also times
 reading the stream through without converting a frame (``grab`` only): the least any stride
 can take, since a compressed stream's frames must all be decoded in order. Prints, for each N,
@@ -24,14 +26,15 @@ import numpy as np
 from granseg._io import cv2_path
 from granseg.measure import analyze
 from granseg.synth import render_frames
+from granseg.synth.frames import VIDEO_PLAYBACK_FPS as PLAYBACK_FPS
+from granseg.synth.frames import _encode
 
 RENDERED = 37
-PLAYBACK_FPS = 30.0
 
 
-def _video(d: Path, seconds: float) -> Path:
-    """``d``/run.mp4 (with experiment.json beside it): the rendered frames in turn for ``seconds``."""
-    video = d / "run.mp4"
+def _video(d: Path, seconds: float, codec: str) -> Path:
+    """``d``/run-CODEC.mp4 (with experiment.json beside it): the rendered frames in turn for ``seconds``."""
+    video = d / f"run-{codec}.mp4"
     if video.exists():
         return video
     c = np.zeros((RENDERED, 15))
@@ -39,10 +42,7 @@ def _video(d: Path, seconds: float) -> Path:
     c[1:] = 0.5
     frames = render_frames(c, heavy="steel", light="pp", particle_diameter_px=38.0, image_size=(1920, 1440),
                            out_dir=d / "frames", force=True, experiment={"fps": None})
-    writer = cv2.VideoWriter(cv2_path(video), cv2.VideoWriter_fourcc(*"mp4v"), PLAYBACK_FPS, (1920, 1440))
-    for i in range(int(seconds * PLAYBACK_FPS)):
-        writer.write(frames.images[i % RENDERED])
-    writer.release()
+    _encode([frames.images[i % RENDERED] for i in range(int(seconds * PLAYBACK_FPS))], video, codec, None)
     (d / "experiment.json").write_text((d / "frames" / "experiment.json").read_text())
     return video
 
@@ -63,12 +63,13 @@ def main() -> None:
     ap.add_argument("--every", type=int, nargs="+", default=[1, 10, 30])
     ap.add_argument("--repeat", type=int, default=2)
     ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--codec", choices=("mp4v", "h264"), default="mp4v")
     ap.add_argument("--dir", type=Path, default=None, help="keep (or reuse) the video here")
     args = ap.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
         d = args.dir if args.dir is not None else Path(tmp)
         d.mkdir(parents=True, exist_ok=True)
-        video = _video(d, args.seconds)
+        video = _video(d, args.seconds, args.codec)
         best = dict.fromkeys(args.every, np.inf)
         grab = np.inf
         for _ in range(args.repeat):
@@ -79,7 +80,7 @@ def main() -> None:
                 a = analyze(video, every=k, save=False, progress=False, workers=args.workers)
                 best[k] = min(best[k], time.perf_counter() - start)
                 assert len(a.t) == -(-n // k)
-    print(f"MPEG-4 video, {n} frames of 1920 x 1440 at {PLAYBACK_FPS:g} fps ({n / PLAYBACK_FPS:g} s), "
+    print(f"{args.codec} video, {n} frames of 1920 x 1440 at {PLAYBACK_FPS:g} fps ({n / PLAYBACK_FPS:g} s), "
           f"{args.workers} workers, best of {args.repeat}")
     print(f"  grabbing the stream alone: {grab:.2f} s, {n / grab:.0f} frames/s")
     for k, took in best.items():
