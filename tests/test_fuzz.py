@@ -371,13 +371,12 @@ def check_cli(recipe: fs.Recipe, command: str, rc: Any, err: str, known: str | N
     quality check (the README's table of exit statuses)."""
     problem = None
     lines = [ln for ln in err.splitlines() if ln.strip()]
-    if strict and rc == 3:
-        if "*** WARNING: this map failed" not in err:
-            problem = "exit 3 without saying which quality check failed"
-    elif rc not in (0, 1, 2, 130):
+    if rc not in (0, 1, 2, 130) and not (strict and rc == 3):
         problem = f"exit code {rc!r}"
     elif "Traceback" in err:
         problem = "a traceback on stderr"
+    elif rc == 3 and "*** WARNING: this map failed" not in err:
+        problem = "exit 3 without saying which quality check failed"
     elif rc in (1, 2) and not (lines and lines[-1].startswith((f"granseg {command}: error: ", "granseg: error: "))):
         problem = "the failure does not end in one 'granseg CMD: error:' line"
     if problem is None or _known_open_bug(recipe, known):
