@@ -229,3 +229,15 @@ def test_a_decision_threshold_out_of_range_is_named_before_any_work(name, bad):
     (found by tests/test_fuzz.py)."""
     with pytest.raises(ValueError, match=name):
         granseg.diagnose([], progress=False, **{name: bad})
+
+
+@pytest.mark.parametrize("name, bad", [("H", 10**400), ("H", 0.0), ("H", "tall"), ("H", float("inf")),
+                                       ("D_p", 10**400), ("D_p", "6 mm"), ("D_p", -1.0)],
+                         ids=lambda v: str(v)[:12])
+def test_a_velocity_length_out_of_range_is_named_before_any_tracking(tmp_path, name, bad):
+    """Was: OverflowError 'int too large to convert to float' for H = 10**400, raised only after
+    every recording had been tracked (found by tests/test_fuzz.py, long profile, seed 2026). The
+    recording here does not exist: the length must be refused before it is looked at."""
+    from granseg.velocity import measure_velocity
+    with pytest.raises(ValueError, match=rf"measure_velocity: {name} = "):
+        measure_velocity(tmp_path / "no-such-recording", progress=False, **{name: bad})

@@ -50,11 +50,12 @@ from typing import Any
 import numpy as np
 
 from granseg.constants import D_P
+from granseg.errors import short_repr
 from granseg.measure.experiment import load_experiment
 from granseg.measure.layers import height
 from granseg.measure.pipeline import Detected, detect_frames
 from granseg.measure.sources import open_frames
-from granseg.model import defaults
+from granseg.model import _finite, defaults
 from granseg.velocity.profile import VelocityProfile
 
 __all__ = ["BLOCKS", "LAYER_CORRELATION", "MAX_STEP", "SEARCH", "Recording", "measure_velocity", "track_recording"]
@@ -309,6 +310,14 @@ def _frame_rate_of(path: str | os.PathLike) -> float:
     return float(fps)
 
 
+def _length(name: str, value: Any) -> float:
+    """``value`` [m] as a finite float > 0, else a ValueError naming ``name``."""
+    v = _finite(value, f"measure_velocity: {name} =")
+    if v <= 0:
+        raise ValueError(f"measure_velocity: {name} = {short_repr(value)} m must be > 0")
+    return v
+
+
 def measure_velocity(recordings: str | os.PathLike | Sequence[str | os.PathLike], *, D_p: float = D_P,
                      H: float | None = None, workers: int | None = None, progress: bool = True
                      ) -> tuple[VelocityProfile, list[Recording]]:
@@ -322,8 +331,10 @@ def measure_velocity(recordings: str | os.PathLike | Sequence[str | os.PathLike]
     paths = [recordings] if isinstance(recordings, (str, os.PathLike)) else list(recordings)
     if not paths:
         raise ValueError("measure_velocity: no recording given")
-    if not (np.isfinite(D_p) and D_p > 0):
-        raise ValueError(f"measure_velocity: D_p = {D_p!r} m must be > 0")
+    # both lengths are checked before any recording is tracked, which takes minutes
+    D_p = _length("D_p", D_p)
+    if H is not None:
+        H = _length("H", H)
     # the fastest camera first: its profile guides the linking of the slower ones
     paths.sort(key=lambda p: -_frame_rate_of(p))
     recs: list[Recording] = []
@@ -335,7 +346,7 @@ def measure_velocity(recordings: str | os.PathLike | Sequence[str | os.PathLike]
     sign = np.sign(v[np.isfinite(v)][0]) if np.isfinite(v).any() else 1.0
     v = sign * v  # speeds along the plate's motion
     n_layers = v.size
-    height_m = float(H) if H is not None else n_layers * D_p
+    height_m = H if H is not None else n_layers * D_p
     exp = recs[0].detected.experiment
     notes = [note for r in recs for note in r.notes]
     missing = np.flatnonzero(~np.isfinite(v) | ~np.isfinite(v_err))
