@@ -129,6 +129,54 @@ def test_every_nth_frame_gives_the_rows_of_those_frames(tmp_path, capsys):
     assert "not allowed with" in capsys.readouterr().err
 
 
+def test_frames_filmed_before_the_plate_started_are_left_out(tmp_path, capsys):
+    """A negative t0 (the camera started first) leaves out the frames filmed before the plate
+    moved: a recording that opens with three frames of the bed at rest, t0 = -2.5 frames, gives
+    the map of the run without them, its rows half a frame later; from a frames folder and from a
+    video alike, and the velocity tracking's detection skips them too."""
+    import csv
+    import shutil
+
+    from granseg.measure.pipeline import detect_frames
+
+    d = tmp_path / "run"
+    render_frames(_map(5), seed=4, out_dir=d, **SMALL)
+    exp = json.loads((d / "experiment.json").read_text())
+    fps = exp["fps"]
+    whole = analyze(d, save=False, progress=False)
+    early = tmp_path / "early"
+    early.mkdir()
+    pngs = sorted(d.glob("*.png"))
+    for k in range(3):  # sort before the run's own names
+        shutil.copy(pngs[0], early / f"0rest_{k}.png")
+    for p in pngs:
+        shutil.copy(p, early / p.name)
+    (early / "experiment.json").write_text(json.dumps({**exp, "t0": -2.5 / fps}))
+    video = tmp_path / "vid" / "run.avi"
+    video.parent.mkdir()
+    images = [cv2.imread(str(p)) for p in sorted(early.glob("*.png"))]
+    writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"FFV1"), 30.0, images[0].shape[1::-1])
+    for img in images:
+        writer.write(img)
+    writer.release()
+    (video.parent / "experiment.json").write_text((early / "experiment.json").read_text())
+    for source in (early, video):
+        late = analyze(source, save=False, progress=False)
+        assert np.array_equal(late.n, whole.n) and np.array_equal(late.n_heavy, whole.n_heavy)
+        assert np.allclose(late.t, whole.t + 0.5 / fps) and late.first == 3
+        assert late.quality.figures["frames_first"] == 3 and whole.quality.figures["frames_first"] == 0
+        assert len(detect_frames(source, progress=False).spheres) == len(pngs)
+    assert main(["analyze", str(early), "--every", "2", "--detections", str(tmp_path / "det.csv"),
+                 "--no-progress"]) == 0
+    assert "the first 3 frames, filmed before the plate started (t0 < 0), left out" in capsys.readouterr().out
+    with open(tmp_path / "det.csv", newline="") as f:
+        assert sorted({int(r["frame"]) for r in csv.DictReader(f)}) == [3, 5, 7]  # the recording's frames
+    for t0 in (-len(images) / fps, -1e300):  # the plate starts after the last frame
+        (early / "experiment.json").write_text(json.dumps({**exp, "t0": t0}))
+        with pytest.raises(ValueError, match="field 't0': .* puts the plate's start after the recording's last frame"):
+            analyze(early, save=False, progress=False)
+
+
 @pytest.mark.parametrize("damage, message", [
     (lambda p: p.write_bytes(b""), "empty file"),
     (lambda p: p.write_bytes(p.read_bytes()[:2000]), "truncated PNG"),

@@ -77,6 +77,8 @@ def run(args: argparse.Namespace) -> int:
     good = len(result.frame_names) - len(result.bad_frames)
     step = float(result.t[1] - result.t[0]) if len(result.t) > 1 else 0.0
     print(f"{len(result.frame_names)} frames, {good} analysed, {len(result.bad_frames)} bad frames")
+    if result.first:
+        print(f"the first {result.first} frames, filmed before the plate started (t0 < 0), left out")
     if result.every > 1:
         print(f"one frame in {result.every} analysed: the map's rows are {step:.4g} s apart")
     print(f"spheres per frame in the window: {result.n.sum(axis=1)[result.n.sum(axis=1) > 0].mean():.1f}")

@@ -110,12 +110,10 @@ def _diameter(p: Path, get: _Fields, window: np.ndarray) -> float:
 
 
 def _start_time(p: Path, get: _Fields) -> float:
-    """t0 [s], the time of the first frame after the shear started (0 when not given)."""
-    t0 = get.number("t0", required=False) or 0.0
-    if t0 < 0:
-        raise ValueError(f"{p}: field 't0': {t0:g} s; the first frame's time counts from the start of "
-                         "the shear and must be >= 0 s")
-    return t0
+    """t0 [s], the time of the first frame since the shear started (0 when not given). Negative when
+    the camera was started first: the frames before the plate moved are then left out
+    (:func:`granseg.measure.pipeline.from_plate_start`)."""
+    return get.number("t0", required=False) or 0.0
 
 
 def _finite(value: int | float) -> bool:

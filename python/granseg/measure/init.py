@@ -43,7 +43,7 @@ HELP: dict[str, str] = {
     "M_w": "load on the lid: lid plus added masses [kg]",
     "fps": "frames per second [1/s]; for stills taken every S seconds, 1/S; null for a video "
            "(its own rate is used)",
-    "t0": "time of the first frame since the plate started [s]",
+    "t0": "time of the first frame since the plate started [s]; negative if the camera started first",
     "camera_matrix": "OpenCV camera matrix [[fx,0,cx],[0,fy,cy],[0,0,1]] [px], from granseg calibrate-camera "
                      "(without one: a pinhole without distortion centred on the image)",
     "dist_coeffs": "OpenCV distortion coefficients [k1,k2,p1,p2,k3], from granseg calibrate-camera",

@@ -115,7 +115,8 @@ class Analysis:
     bad_frames: list of (frame name, problem); out: the map file written (or None);
     quality: the checks of :mod:`granseg.measure.quality` (also stored in the map);
     classes: the learned heavy / light classifier (None with colour ranges);
-    every: the map's row i is the recording's frame i x every.
+    first, every: the map's row i is the recording's frame first + i x every (first > 0 where the
+    recording started before the plate, a negative ``t0``).
     """
 
     c: np.ndarray
@@ -134,6 +135,7 @@ class Analysis:
     quality: Quality | None = None
     classes: MaterialClasses | None = None
     detections: Path | None = None
+    first: int = 0
     every: int = 1
 
 
@@ -218,11 +220,12 @@ def analyze(
     source, exp_path = open_frames(path)
     exp = load_experiment(exp_path)
     reduce = analysis_reduction(exp.particle_diameter_px) if reduce is None else int(reduce)
-    seen = _reduced_experiment(exp, reduce)
     fps = _frame_rate(exp, source)
+    exp, first = from_plate_start(exp, fps, source)
+    seen = _reduced_experiment(exp, reduce)
     if every_seconds is not None:
         every = frames_every(every_seconds, fps)
-    source.keep_every(int(every))
+    source.keep(int(every), first)
     fps /= int(every)  # the map's rows per second
     _check_times(exp, fps, len(source))
     if smooth_seconds is not None:
@@ -244,7 +247,7 @@ def analyze(
     classes = _classify(spheres, seen, crops, spots, ends_unmixed)
     shift = _level_classes(spheres, seen)
     reduced = _assemble(spheres, seen, fps, smooth, names, bad)
-    reduced.classes, reduced.every = classes, int(every)
+    reduced.classes, reduced.first, reduced.every = classes, first, int(every)
     reduced.quality = _assess(reduced, shift, reduce)
     result = _in_frame_pixels(reduced, exp, reduce)
     if not result.quality.ok:
@@ -289,6 +292,8 @@ def detect_frames(path: str | os.PathLike, *, workers: int | None = None, progre
     source, exp_path = open_frames(path)
     exp = load_experiment(exp_path)
     fps = _frame_rate(exp, source)
+    exp, first = from_plate_start(exp, fps, source)
+    source.keep(first=first)
     reduce = analysis_reduction(exp.particle_diameter_px)
     spheres, _, bad, names, _ = _detect_all(source, exp, workers, progress, set(), describe=False, reduce=reduce)
     return Detected(exp, fps, [_sphere_pixels(s, reduce) for s in spheres], names, bad)
@@ -393,6 +398,22 @@ def _frame_rate(exp: Experiment, source: FrameDirectory | VideoFrames) -> float:
     if not fps or fps <= 0:
         raise ValueError(f"{exp.path}: missing field 'fps' (frames per second)")
     return float(fps)
+
+
+def from_plate_start(exp: Experiment, fps: float, source: FrameDirectory | VideoFrames) -> tuple[Experiment, int]:
+    """The recording from the first frame filmed once the plate moved: ``exp`` with that frame's
+    ``t0`` (>= 0) and its index. A negative ``t0`` says the camera was started first; the frames
+    before (``-t0 x fps`` of them, the bed at rest) tell nothing of the segregation and are left
+    out. ValueError naming ``t0`` where the plate starts after the recording's last frame."""
+    if exp.t0 >= 0:
+        return exp, 0
+    n = len(source)  # 0 for a video whose header does not tell
+    before = -exp.t0 * fps  # frames filmed before the plate moved, as a real number
+    if not np.isfinite(before) or (n and before > n - 1):
+        raise ValueError(f"{exp.path}: field 't0': {exp.t0:g} s puts the plate's start after the recording's "
+                         f"last frame ({n} frames at {fps:g} fps)")
+    first = int(np.ceil(before - 1e-9))  # frame `before` itself, if whole, is filmed at t = 0
+    return replace(exp, t0=max(0.0, exp.t0 + first / fps)), first
 
 
 def _check_times(exp: Experiment, fps: float, n: int) -> None:
@@ -852,6 +873,7 @@ def _assess(result: Analysis, shift: tuple[float, int] = (0.0, 0), reduce: int =
         light_share=result.classes.light_share if learned else None,
         frames_reduced=reduce,
         frames_every=result.every,
+        frames_first=result.first,
     )
 
 
@@ -899,7 +921,7 @@ def write_detections(path: str | os.PathLike, result: Analysis, force: bool = Fa
             layer = layer_index(s.y, result.experiment.window)
             p = s.p_heavy if s.p_heavy is not None else [None] * len(s.x)
             for x, y, r, h, ph, j in zip(s.x, s.y, s.r, s.heavy, p, layer, strict=True):
-                w.writerow([i * result.every, f"{x:.2f}", f"{y:.2f}", f"{r:.2f}", "heavy" if h else "light",
+                w.writerow([result.first + i * result.every, f"{x:.2f}", f"{y:.2f}", f"{r:.2f}", "heavy" if h else "light",
                             "" if ph is None else f"{ph:.4f}", int(j)])
     return path
 

@@ -240,7 +240,7 @@ def assess(*, n: np.ndarray, n_heavy: np.ndarray, c0: float, first_heights: np.n
            gloss_at_spots: bool | None = None, vacant: tuple[int, int] | None = None,
            walls: WallLines | None = None, learned_from_end: bool = False,
            light_contrast: float | None = None, light_share: float | None = None,
-           frames_reduced: int = 1, frames_every: int = 1) -> Quality:
+           frames_reduced: int = 1, frames_every: int = 1, frames_first: int = 0) -> Quality:
     """Run every check on one analysed run.
 
     n, n_heavy: (n_t, n_layers) counts (rows of bad frames all zero);
@@ -286,7 +286,9 @@ def assess(*, n: np.ndarray, n_heavy: np.ndarray, c0: float, first_heights: np.n
     times the frames were reduced for the analysis (the figure
     ``frames_reduced``): the figures and limits in px are the reduced
     frames' pixels; frames_every: the map's rows are every this-many-th frame
-    of the recording (the figure ``frames_every``).
+    of the recording (the figure ``frames_every``), from its frame
+    frames_first on (the figure ``frames_first``: > 0 where the camera was
+    started before the plate, a negative t0).
     """
     n_t, n_layers = n.shape
     good = n.sum(axis=1) > 0
@@ -305,6 +307,7 @@ def assess(*, n: np.ndarray, n_heavy: np.ndarray, c0: float, first_heights: np.n
         "class_shift_px": float(class_shift[0]),
         "frames_reduced": int(frames_reduced),
         "frames_every": int(frames_every),
+        "frames_first": int(frames_first),
         "class_shift_pairs": int(class_shift[1]),
         "first_frame": first,
     }

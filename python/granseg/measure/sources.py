@@ -22,7 +22,8 @@ IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
 class FrameDirectory:
     """Still images (PNG or JPEG) in a directory, in name order; decoded on demand (thread-safe).
 
-    ``every``: frame i is the directory's image i x every (:meth:`keep_every`; 1, all of them).
+    ``first``, ``every``: frame i is the directory's image first + i x every (:meth:`keep`; 0 and 1,
+    all of them).
     """
 
     def __init__(self, directory: Path):
@@ -36,13 +37,14 @@ class FrameDirectory:
             raise ValueError(f"{directory}: no PNG or JPEG frames in the directory")
         self.names = [p.name for p in self.files]
         self.fps: float | None = None
-        self.every = 1
+        self.first, self.every = 0, 1
 
-    def keep_every(self, every: int) -> None:
-        """Keep every ``every``-th image, the first included; the others are never read."""
-        self.files = self.all_files[::every]
+    def keep(self, every: int = 1, first: int = 0) -> None:
+        """Keep every ``every``-th image from image ``first`` on, that one included; the others are
+        never read."""
+        self.files = self.all_files[first::every]
         self.names = [p.name for p in self.files]
-        self.every = every
+        self.first, self.every = first, every
 
     def __len__(self) -> int:
         return len(self.files)
@@ -162,8 +164,8 @@ def _check_complete(path: Path, data: bytes) -> None:
 class VideoFrames:
     """Frames of a video file, decoded in order by OpenCV's VideoCapture.
 
-    ``every``: frame i is the stream's frame i x every (:meth:`keep_every`; 1, all of them); the
-    frames between are only grabbed, not converted. ``expected`` is how many of those frames the
+    ``first``, ``every``: frame i is the stream's frame first + i x every (:meth:`keep`; 0 and 1,
+    all of them); the frames before and between are only grabbed, not converted. ``expected`` is how many of those frames the
     header announces, ``decoded`` how many the last full read found (None before one).
     """
 
@@ -179,17 +181,17 @@ class VideoFrames:
             raise ValueError(f"{path}: not a video OpenCV can open")
         self.path = path
         self.decoded: int | None = None
-        self.keep_every(1)
+        self.keep()
 
-    def keep_every(self, every: int) -> None:
-        """Keep every ``every``-th frame of the stream, the first included."""
-        self.every = every
-        self.expected = -(-self.in_stream // every)
+    def keep(self, every: int = 1, first: int = 0) -> None:
+        """Keep every ``every``-th frame of the stream from frame ``first`` on, that one included."""
+        self.first, self.every = first, every
+        self.expected = -(-max(self.in_stream - first, 0) // every)
         self.names = [self.name(i) for i in range(self.expected)]
 
     def name(self, i: int) -> str:
         """Frame ``i``'s name: the file's, then the frame's place in the stream."""
-        return f"{self.path.name}#{i * self.every}"
+        return f"{self.path.name}#{self.first + i * self.every}"
 
     def __len__(self) -> int:
         return len(self.names)
@@ -199,6 +201,8 @@ class VideoFrames:
         cap = cv2.VideoCapture(cv2_path(self.path))
         i = 0
         try:
+            if not _skipped(cap, self.first):
+                return
             while True:
                 if i and not _skipped(cap, self.every - 1):
                     break
@@ -220,6 +224,8 @@ class VideoFrames:
         ``size`` are not used (a stream is read in order, its frames share one size)."""
         cap = cv2.VideoCapture(cv2_path(self.path))
         try:
+            if not _skipped(cap, self.first):
+                return
             for i in range(max(indices, default=-1) + 1):
                 if (i and not _skipped(cap, self.every - 1)) or not cap.grab():
                     break
