@@ -1,6 +1,7 @@
 """How fast ``granseg analyze --every N`` gets through a video filmed in real time.
 
     PYTHONPATH=python python benches/bench_every.py [--seconds 20] [--every 1 10 30] [--codec mp4v] [--dir DIR]
+    PYTHONPATH=python python benches/bench_every.py --seconds 120 --every 30 --grab-survey-too
 
 Renders 37 frames of the throughput bench's look (granseg.synth, steel/PP, 1920 x 1440, D = 38
 px) once, writes them over and over as a video of ``--seconds`` at 30 fps (37 is prime, so no
@@ -11,6 +12,8 @@ on two workers for each N, taking turns over ``--repeat`` rounds (best of them).
 reading the stream through without converting a frame (``grab`` only): the least any stride
 can take, since a compressed stream's frames must all be decoded in order. Prints, for each N,
 the recording's frames got through per second and the frames analysed per second.
+``--grab-survey-too`` also times each N with the exposure survey grabbing every frame up to the
+ones it reads, as before it sought far ones (``sources.SEEK_FRAMES``), in turn with the default.
 """
 
 from __future__ import annotations
@@ -24,7 +27,7 @@ import cv2
 import numpy as np
 
 from granseg._io import cv2_path
-from granseg.measure import analyze
+from granseg.measure import analyze, sources
 from granseg.synth import render_frames
 from granseg.synth.frames import VIDEO_PLAYBACK_FPS as PLAYBACK_FPS
 from granseg.synth.frames import _encode
@@ -65,26 +68,30 @@ def main() -> None:
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--codec", choices=("mp4v", "h264"), default="mp4v")
     ap.add_argument("--dir", type=Path, default=None, help="keep (or reuse) the video here")
+    ap.add_argument("--grab-survey-too", action="store_true",
+                    help="also time each N with the survey grabbing, not seeking, far frames")
     args = ap.parse_args()
+    ways = {"": sources.SEEK_FRAMES} | ({" (survey grabs)": 10**12} if args.grab_survey_too else {})
     with tempfile.TemporaryDirectory() as tmp:
         d = args.dir if args.dir is not None else Path(tmp)
         d.mkdir(parents=True, exist_ok=True)
         video = _video(d, args.seconds, args.codec)
-        best = dict.fromkeys(args.every, np.inf)
+        best = {(k, way): np.inf for k in args.every for way in ways}
         grab = np.inf
         for _ in range(args.repeat):
             n, took = grab_seconds(video)
             grab = min(grab, took)
-            for k in args.every:  # taking turns, so that a busier spell hits each alike
+            for k, way in best:  # taking turns, so that a busier spell hits each alike
+                sources.SEEK_FRAMES = ways[way]
                 start = time.perf_counter()
                 a = analyze(video, every=k, save=False, progress=False, workers=args.workers)
-                best[k] = min(best[k], time.perf_counter() - start)
+                best[k, way] = min(best[k, way], time.perf_counter() - start)
                 assert len(a.t) == -(-n // k)
     print(f"{args.codec} video, {n} frames of 1920 x 1440 at {PLAYBACK_FPS:g} fps ({n / PLAYBACK_FPS:g} s), "
           f"{args.workers} workers, best of {args.repeat}")
     print(f"  grabbing the stream alone: {grab:.2f} s, {n / grab:.0f} frames/s")
-    for k, took in best.items():
-        print(f"  --every {k:>3}: {took:.2f} s, {n / took:.0f} recording frames/s "
+    for (k, way), took in best.items():
+        print(f"  --every {k:>3}{way}: {took:.2f} s, {n / took:.0f} recording frames/s "
               f"({n / took / PLAYBACK_FPS:.1f} x real time), {-(-n // k) / took:.1f} frames analysed/s")
 
 

@@ -91,3 +91,67 @@ def test_the_surveyed_frames_come_in_order_and_the_unreadable_are_left_out(tmp_p
     got = list(FrameDirectory(tmp_path).some({6, 0, 3, 5, 2, 4}, workers=2))
     assert [i for i, _ in got] == [0, 2, 4, 6]
     assert [int(img[0, 0, 0]) for _, img in got] == [0, 20, 40, 60]
+
+
+@pytest.mark.parametrize("codec", ["FFV1", "mp4v", "h264"])
+def test_the_survey_seeks_far_frames_of_a_video_and_lands_on_them(tmp_path, monkeypatch, codec):
+    """Frames of a video further apart than SEEK_FRAMES are sought, not decoded one by one, and
+    each is the frame asked for, as grabbing all between gives it: in a lossless stream of key
+    frames, in MPEG-4 and in H.264 with a key frame every 15 (OpenCV decodes forward from the key
+    frame before); also from a later first frame and with a stride (``keep``)."""
+    import cv2
+
+    from granseg.measure import sources
+    from granseg.synth.frames import _encode
+
+    def drawn(k: int) -> np.ndarray:  # frame k: a bright block in band k // 64, column k % 64
+        img = np.zeros((256, 256, 3), np.uint8)
+        img[64 * (k // 64):64 * (k // 64) + 64, 4 * (k % 64):4 * (k % 64) + 4] = 255
+        return img
+
+    def shown(img: np.ndarray) -> int:  # which k a decoded frame shows
+        blocks = img[..., 0].reshape(4, 64, 64, 4).mean(axis=(1, 3))
+        band, column = np.unravel_index(np.argmax(blocks), blocks.shape)
+        return int(64 * band + column)
+
+    path = tmp_path / "frames.avi"
+    if codec == "h264":  # a key frame every 15, as a GoPro's
+        pytest.importorskip("av")
+        path = path.with_suffix(".mp4")
+        _encode([drawn(k) for k in range(240)], path, "h264", None)
+    else:
+        writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*codec), 30.0, (256, 256))
+        for k in range(240):
+            writer.write(drawn(k))
+        writer.release()
+    seeks = []
+    capture = cv2.VideoCapture
+
+    class Counted:  # a capture that counts its seeks (a subclass of OpenCV's crashes when collected)
+        def __init__(self, *args):
+            self.cap = capture(*args)
+
+        def set(self, prop, value):
+            seeks.append(value)
+            return self.cap.set(prop, value)
+
+        def __getattr__(self, name):
+            return getattr(self.cap, name)
+
+    video = sources.VideoFrames(path)
+    for every, first in ((1, 0), (3, 5)):
+        video.keep(every, first)
+        wanted = survey_indices(len(video), 0)
+        read = dict(video.some(wanted))
+        assert not seeks
+        monkeypatch.setattr(sources, "SEEK_FRAMES", 4)
+        monkeypatch.setattr(cv2, "VideoCapture", Counted)
+        sought = dict(video.some(wanted))
+        monkeypatch.undo()
+        assert len(seeks) == len(wanted)  # every one sought: they lie 9 or more frames apart
+        seeks.clear()
+        assert sorted(read) == sorted(sought) == sorted(wanted)
+        for i in wanted:
+            target = first + i * every
+            assert shown(read[i]) == target  # grabbed: the frame itself
+            assert shown(sought[i]) == target

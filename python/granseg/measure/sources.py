@@ -161,6 +161,15 @@ def _check_complete(path: Path, data: bytes) -> None:
         raise BadFrame(f"{path}: truncated PNG (no IEND chunk)")
 
 
+# Frames further apart in a stream than this are reached by a seek, not by decoding every frame
+# between. The survey (measure.exposure) reads two dozen frames spread over the run: grabbed, an
+# hour of H.264 at 1920 x 1440 is a whole extra pass through the stream, where a seek decodes from
+# the key frame before its target, up to a camera's key-frame interval (GoPro: 1 s) and OpenCV's
+# own step back of 16. Nearer frames are grabbed, as a seek then saves nothing (BENCHMARKS.md,
+# "The exposure survey seeks in a long video").
+SEEK_FRAMES = 300
+
+
 class VideoFrames:
     """Frames of a video file, decoded in order by OpenCV's VideoCapture.
 
@@ -219,20 +228,27 @@ class VideoFrames:
 
     def some(self, indices: set[int], workers: int = 1, reduce: int = 1,
              size: tuple[int, int] | None = None) -> Iterator[tuple[int, np.ndarray]]:
-        """The decodable frames among ``indices``, in order, reduced ``reduce`` times: the stream is
-        read through once, the frames between only grabbed (not converted to BGR); ``workers`` and
-        ``size`` are not used (a stream is read in order, its frames share one size)."""
+        """The frames among ``indices``, in order, reduced ``reduce`` times: what the exposure survey
+        needs, frames spread over the run. One more than SEEK_FRAMES stream frames past the last is
+        sought (OpenCV decodes forward from the key frame before it: the frame itself in MPEG-4,
+        H.264 and FFV1, tests/test_measure_exposure.py; a stream of another make might land a frame
+        off, which a survey does not mind), nearer ones are reached by grabbing the frames between
+        (decoded, not converted to BGR). The frames stop where the stream does, or cannot be decoded
+        further. ``workers`` and ``size`` are not used (a stream is read in order, its frames share
+        one size)."""
         cap = cv2.VideoCapture(cv2_path(self.path))
+        at = 0  # the stream's frame the next grab decodes
         try:
-            if not _skipped(cap, self.first):
-                return
-            for i in range(max(indices, default=-1) + 1):
-                if (i and not _skipped(cap, self.every - 1)) or not cap.grab():
+            for i in sorted(indices):
+                target = self.first + i * self.every
+                if target - at > SEEK_FRAMES and cap.set(cv2.CAP_PROP_POS_FRAMES, target):
+                    at = target
+                if not _skipped(cap, target - at) or not cap.grab():
                     break
-                if i in indices:
-                    ok, img = cap.retrieve()
-                    if ok:
-                        yield i, reduce_frame(img, reduce)
+                at = target + 1
+                ok, img = cap.retrieve()
+                if ok:
+                    yield i, reduce_frame(img, reduce)
         finally:
             cap.release()
 
