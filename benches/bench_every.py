@@ -1,7 +1,7 @@
 """How fast ``granseg analyze --every N`` gets through a video filmed in real time.
 
     PYTHONPATH=python python benches/bench_every.py [--seconds 20] [--every 1 10 30] [--codec mp4v] [--dir DIR]
-    PYTHONPATH=python python benches/bench_every.py --seconds 120 --every 30 --grab-survey-too
+    PYTHONPATH=python python benches/bench_every.py --seconds 120 --every 30 --grab-too
 
 Renders 37 frames of the throughput bench's look (granseg.synth, steel/PP, 1920 x 1440, D = 38
 px) once, writes them over and over as a video of ``--seconds`` at 30 fps (37 is prime, so no
@@ -12,8 +12,9 @@ on two workers for each N, taking turns over ``--repeat`` rounds (best of them).
 reading the stream through without converting a frame (``grab`` only): the least any stride
 can take, since a compressed stream's frames must all be decoded in order. Prints, for each N,
 the recording's frames got through per second and the frames analysed per second.
-``--grab-survey-too`` also times each N with the exposure survey grabbing every frame up to the
-ones it reads, as before it sought far ones (``sources.SEEK_FRAMES``), in turn with the default.
+``--grab-too`` also times each N with no frame sought, every one grabbed up to those read, as
+before frames further apart than ``sources.SEEK_FRAMES`` were sought (by the exposure survey, and
+at such a stride by the analysis), in turn with the default.
 """
 
 from __future__ import annotations
@@ -68,10 +69,10 @@ def main() -> None:
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--codec", choices=("mp4v", "h264"), default="mp4v")
     ap.add_argument("--dir", type=Path, default=None, help="keep (or reuse) the video here")
-    ap.add_argument("--grab-survey-too", action="store_true",
-                    help="also time each N with the survey grabbing, not seeking, far frames")
+    ap.add_argument("--grab-too", action="store_true",
+                    help="also time each N with every frame grabbed, none sought")
     args = ap.parse_args()
-    ways = {"": sources.SEEK_FRAMES} | ({" (survey grabs)": 10**12} if args.grab_survey_too else {})
+    ways = {"": sources.SEEK_FRAMES} | ({" (no seek)": 10**12} if args.grab_too else {})
     with tempfile.TemporaryDirectory() as tmp:
         d = args.dir if args.dir is not None else Path(tmp)
         d.mkdir(parents=True, exist_ok=True)

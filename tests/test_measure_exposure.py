@@ -98,7 +98,8 @@ def test_the_survey_seeks_far_frames_of_a_video_and_lands_on_them(tmp_path, monk
     """Frames of a video further apart than SEEK_FRAMES are sought, not decoded one by one, and
     each is the frame asked for, as grabbing all between gives it: in a lossless stream of key
     frames, in MPEG-4 and in H.264 with a key frame every 15 (OpenCV decodes forward from the key
-    frame before); also from a later first frame and with a stride (``keep``)."""
+    frame before); also from a later first frame and with a stride (``keep``), and so are the
+    analysis's frames at a stride longer than SEEK_FRAMES."""
     import cv2
 
     from granseg.measure import sources
@@ -151,6 +152,19 @@ def test_the_survey_seeks_far_frames_of_a_video_and_lands_on_them(tmp_path, monk
         assert len(seeks) == len(wanted)  # every one sought: they lie 9 or more frames apart
         seeks.clear()
         assert sorted(read) == sorted(sought) == sorted(wanted)
+        # the analysis's pass, at a stride longer than SEEK_FRAMES, seeks every frame (the first
+        # too: it is 5 frames in)
+        grabbed = [shown(img) for _, img in video.frames()]
+        assert grabbed == list(range(first, 240, every)) and not seeks
+        monkeypatch.setattr(sources, "SEEK_FRAMES", max(every - 2, 0))
+        monkeypatch.setattr(cv2, "VideoCapture", Counted)
+        assert [shown(img) for _, img in video.frames()] == grabbed
+        monkeypatch.undo()
+        if every > 1:  # each kept frame sought, then one past the end, where the stream stops
+            assert seeks[:len(grabbed)] == grabbed and len(seeks) <= len(grabbed) + 1
+        else:
+            assert not seeks
+        seeks.clear()
         for i in wanted:
             target = first + i * every
             assert shown(read[i]) == target  # grabbed: the frame itself

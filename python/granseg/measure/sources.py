@@ -162,11 +162,12 @@ def _check_complete(path: Path, data: bytes) -> None:
 
 
 # Frames further apart in a stream than this are reached by a seek, not by decoding every frame
-# between. The survey (measure.exposure) reads two dozen frames spread over the run: grabbed, an
-# hour of H.264 at 1920 x 1440 is a whole extra pass through the stream, where a seek decodes from
-# the key frame before its target, up to a camera's key-frame interval (GoPro: 1 s) and OpenCV's
-# own step back of 16. Nearer frames are grabbed, as a seek then saves nothing (BENCHMARKS.md,
-# "The exposure survey seeks in a long video").
+# between. The exposure survey (measure.exposure) reads two dozen frames spread over the run:
+# grabbed, an hour of H.264 at 1920 x 1440 is a whole extra pass through the stream, where a seek
+# decodes from the key frame before its target, up to a camera's key-frame interval (GoPro: 1 s)
+# and OpenCV's own step back of 16. So does a stride of more than this (``analyze --every``).
+# Nearer frames are grabbed, as a seek then saves nothing (BENCHMARKS.md, "The exposure survey
+# seeks in a long video").
 SEEK_FRAMES = 300
 
 
@@ -206,18 +207,16 @@ class VideoFrames:
         return len(self.names)
 
     def frames(self) -> Iterator[tuple[int, np.ndarray]]:
-        """Decoded frames in order; stops at the end of the readable stream."""
+        """Decoded frames in order; stops at the end of the readable stream. Frames kept more than
+        SEEK_FRAMES apart (a long stride) are sought (:func:`_move`)."""
         cap = cv2.VideoCapture(cv2_path(self.path))
-        i = 0
+        i, at = 0, 0  # at: the stream's frame the next grab decodes
         try:
-            if not _skipped(cap, self.first):
-                return
-            while True:
-                if i and not _skipped(cap, self.every - 1):
-                    break
+            while _move(cap, at, self.first + i * self.every):
                 ok, img = cap.read()
                 if not ok:
                     break
+                at = self.first + i * self.every + 1
                 if i >= len(self.names):
                     self.names.append(self.name(i))
                 yield i, img
@@ -229,21 +228,15 @@ class VideoFrames:
     def some(self, indices: set[int], workers: int = 1, reduce: int = 1,
              size: tuple[int, int] | None = None) -> Iterator[tuple[int, np.ndarray]]:
         """The frames among ``indices``, in order, reduced ``reduce`` times: what the exposure survey
-        needs, frames spread over the run. One more than SEEK_FRAMES stream frames past the last is
-        sought (OpenCV decodes forward from the key frame before it: the frame itself in MPEG-4,
-        H.264 and FFV1, tests/test_measure_exposure.py; a stream of another make might land a frame
-        off, which a survey does not mind), nearer ones are reached by grabbing the frames between
-        (decoded, not converted to BGR). The frames stop where the stream does, or cannot be decoded
-        further. ``workers`` and ``size`` are not used (a stream is read in order, its frames share
+        needs, frames spread over the run, reached by :func:`_move`. The frames stop where the
+        stream does, or cannot be decoded further. ``workers`` and ``size`` are not used (a stream is read in order, its frames share
         one size)."""
         cap = cv2.VideoCapture(cv2_path(self.path))
         at = 0  # the stream's frame the next grab decodes
         try:
             for i in sorted(indices):
                 target = self.first + i * self.every
-                if target - at > SEEK_FRAMES and cap.set(cv2.CAP_PROP_POS_FRAMES, target):
-                    at = target
-                if not _skipped(cap, target - at) or not cap.grab():
+                if not _move(cap, at, target) or not cap.grab():
                     break
                 at = target + 1
                 ok, img = cap.retrieve()
@@ -251,6 +244,17 @@ class VideoFrames:
                     yield i, reduce_frame(img, reduce)
         finally:
             cap.release()
+
+
+def _move(cap: cv2.VideoCapture, at: int, target: int) -> bool:
+    """Bring ``cap``, whose next grab decodes the stream's frame ``at``, to frame ``target``: sought
+    if more than SEEK_FRAMES ahead (OpenCV decodes forward from the key frame before it: the frame
+    itself in MPEG-4, H.264 and FFV1, tests/test_measure_exposure.py; a stream of another make might
+    land a frame off), else by grabbing the frames between (decoded, not converted to BGR). False
+    where the stream ends first."""
+    if target - at > SEEK_FRAMES and cap.set(cv2.CAP_PROP_POS_FRAMES, target):
+        return True
+    return _skipped(cap, target - at)
 
 
 def _skipped(cap: cv2.VideoCapture, n: int) -> bool:
