@@ -241,3 +241,23 @@ def test_a_velocity_length_out_of_range_is_named_before_any_tracking(tmp_path, n
     from granseg.velocity import measure_velocity
     with pytest.raises(ValueError, match=rf"measure_velocity: {name} = "):
         measure_velocity(tmp_path / "no-such-recording", progress=False, **{name: bad})
+
+
+@pytest.mark.parametrize("kwargs, words", [
+    ({"every": 10**400}, r"every \(CLI --every\): expected a whole number from 1 to 2147483647, got 1000"),
+    ({"every": 2**31}, r"every \(CLI --every\): expected a whole number from 1 to 2147483647, got 2147483648"),
+    ({"every_seconds": 1e308}, r"every_seconds \(CLI --every-seconds\): 1e\+308 s at 0.5 fps is more than"),
+], ids=["every-huge-int", "every-2^31", "every-seconds-1e308"])
+def test_a_stride_beyond_any_recording_is_named_before_any_frame(tmp_path, kwargs, words):
+    """Was: OverflowError 'int too large to convert to float' from the map's frame rate, for
+    every = 10**400 (the long fuzz profile, seed 4242); every_seconds = 1e308 s overflowed the
+    same way when made a whole number of frames."""
+    import json
+
+    from fuzz_strategies import EXPERIMENT_BASE
+    from granseg.measure import analyze
+
+    (tmp_path / "frame_0000.png").write_bytes(b"never read")  # read only after the check
+    (tmp_path / "experiment.json").write_text(json.dumps(EXPERIMENT_BASE))
+    with pytest.raises(ValueError, match=words):
+        analyze(tmp_path, save=False, progress=False, **kwargs)

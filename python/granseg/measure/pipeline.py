@@ -17,6 +17,7 @@ from tqdm import tqdm
 
 from granseg._io import atomic_path, check_creatable, check_writable
 from granseg.constants import D_P
+from granseg.errors import short_repr
 from granseg.maps import moving_average, save_map
 from granseg.measure.camera import Undistorter, reduce_frame
 from granseg.measure.classify import (
@@ -216,7 +217,7 @@ def analyze(
     _check_count("workers", workers, 1, allow_none=True)
     _check_count("preview_count", preview_count, 1)
     _check_count("reduce", reduce, 1, allow_none=True)
-    _check_count("every", every, 1)
+    _check_count("every", every, 1, most=MOST_EVERY)
     source, exp_path = open_frames(path)
     exp = load_experiment(exp_path)
     reduce = analysis_reduction(exp.particle_diameter_px) if reduce is None else int(reduce)
@@ -346,14 +347,21 @@ def _sphere_pixels(s: FrameSpheres | None, k: int) -> FrameSpheres | None:
                    wall_y=k * s.wall_y + shift)
 
 
-def _check_count(name: str, value: Any, least: int, allow_none: bool = False) -> None:
-    """A whole-number argument (workers, preview_count) that must be >= ``least``; the CLI's
-    --workers/--preview-count arrive here as well."""
+def _check_count(name: str, value: Any, least: int, allow_none: bool = False, most: int | None = None) -> None:
+    """A whole-number argument (workers, preview_count) that must be >= ``least`` (and <= ``most``
+    when given); the CLI's --workers/--preview-count arrive here as well."""
     if value is None and allow_none:
         return
-    if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < least:
+    whole = not isinstance(value, bool) and isinstance(value, int | np.integer)
+    if not whole or value < least or (most is not None and value > most):
         cli = "--" + name.replace("_", "-")
-        raise ValueError(f"{name} (CLI {cli}): expected a whole number >= {least}, got {value!r}")
+        bound = f">= {least}" if most is None else f"from {least} to {most}"
+        raise ValueError(f"{name} (CLI {cli}): expected a whole number {bound}, got {short_repr(value)}")
+
+
+# The longest stride analyze takes [frames]: more than any recording holds (OpenCV counts a
+# stream's frames in 32 bits; two years at 30 fps), and within what a float holds exactly.
+MOST_EVERY = 2**31 - 1
 
 
 def frames_for_seconds(seconds: float, fps: float) -> int:
@@ -366,7 +374,11 @@ def frames_for_seconds(seconds: float, fps: float) -> int:
 def frames_every(seconds: float, fps: float) -> int:
     """The whole number of frames (>= 1) nearest to ``seconds`` of recording at ``fps``: how many
     frames apart the frames analysed lie when the interval is given in time."""
-    return max(1, int(np.rint(_seconds("every_seconds", seconds) * fps)))
+    n = _seconds("every_seconds", seconds) * fps
+    if not n <= MOST_EVERY:
+        raise ValueError(f"every_seconds (CLI --every-seconds): {seconds!r} s at {fps:g} fps is more than "
+                         f"{MOST_EVERY} frames, longer than any recording")
+    return max(1, int(np.rint(n)))
 
 
 def _seconds(name: str, value: Any, least: float | None = None) -> float:
