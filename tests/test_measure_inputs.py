@@ -25,6 +25,18 @@ def _map(n_t=4):
     return c
 
 
+def _as_video(d, video):
+    """The frames of folder ``d`` as a lossless (FFV1) ``video``, its experiment.json beside it."""
+    video.parent.mkdir()
+    images = [cv2.imread(str(p)) for p in sorted(d.glob("*.png"))]
+    writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"FFV1"), 30.0, images[0].shape[1::-1])
+    for img in images:
+        writer.write(img)
+    writer.release()
+    (video.parent / "experiment.json").write_text((d / "experiment.json").read_text())
+    return video
+
+
 @pytest.fixture
 def frames(tmp_path):
     d = tmp_path / "run"
@@ -96,14 +108,7 @@ def test_every_nth_frame_gives_the_rows_of_those_frames(tmp_path, capsys):
     render_frames(_map(7), seed=3, out_dir=d, **SMALL)
     fps = json.loads((d / "experiment.json").read_text())["fps"]
     whole = analyze(d, save=False, progress=False)
-    video = tmp_path / "vid" / "run.avi"
-    video.parent.mkdir()
-    images = [cv2.imread(str(p)) for p in sorted(d.glob("*.png"))]
-    writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"FFV1"), 30.0, images[0].shape[1::-1])
-    for img in images:
-        writer.write(img)
-    writer.release()
-    (video.parent / "experiment.json").write_text((d / "experiment.json").read_text())
+    video = _as_video(d, tmp_path / "vid" / "run.avi")
     for source in (d, video):
         third = analyze(source, every=3, save=False, progress=False)
         assert np.array_equal(third.n, whole.n[::3]) and np.array_equal(third.n_heavy, whole.n_heavy[::3])
@@ -152,14 +157,7 @@ def test_frames_filmed_before_the_plate_started_are_left_out(tmp_path, capsys):
     for p in pngs:
         shutil.copy(p, early / p.name)
     (early / "experiment.json").write_text(json.dumps({**exp, "t0": -2.5 / fps}))
-    video = tmp_path / "vid" / "run.avi"
-    video.parent.mkdir()
-    images = [cv2.imread(str(p)) for p in sorted(early.glob("*.png"))]
-    writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"FFV1"), 30.0, images[0].shape[1::-1])
-    for img in images:
-        writer.write(img)
-    writer.release()
-    (video.parent / "experiment.json").write_text((early / "experiment.json").read_text())
+    video = _as_video(early, tmp_path / "vid" / "run.avi")
     for source in (early, video):
         late = analyze(source, save=False, progress=False)
         assert np.array_equal(late.n, whole.n) and np.array_equal(late.n_heavy, whole.n_heavy)
@@ -171,7 +169,7 @@ def test_frames_filmed_before_the_plate_started_are_left_out(tmp_path, capsys):
     assert "the first 3 frames, filmed before the plate started (t0 < 0), left out" in capsys.readouterr().out
     with open(tmp_path / "det.csv", newline="") as f:
         assert sorted({int(r["frame"]) for r in csv.DictReader(f)}) == [3, 5, 7]  # the recording's frames
-    for t0 in (-len(images) / fps, -1e300):  # the plate starts after the last frame
+    for t0 in (-(len(pngs) + 3) / fps, -1e300):  # the plate starts after the last frame
         (early / "experiment.json").write_text(json.dumps({**exp, "t0": t0}))
         with pytest.raises(ValueError, match="field 't0': .* puts the plate's start after the recording's last frame"):
             analyze(early, save=False, progress=False)
