@@ -175,8 +175,9 @@ class VideoFrames:
     """Frames of a video file, decoded in order by OpenCV's VideoCapture.
 
     ``first``, ``every``: frame i is the stream's frame first + i x every (:meth:`keep`; 0 and 1,
-    all of them); the frames before and between are only grabbed, not converted. ``expected`` is how many of those frames the
-    header announces, ``decoded`` how many the last full read found (None before one).
+    all of them); the frames before and between are only grabbed or sought, not converted.
+    ``expected`` is how many of those frames the header announces, ``decoded`` how many the last
+    full read found (None before one).
     """
 
     def __init__(self, path: Path):
@@ -229,8 +230,8 @@ class VideoFrames:
              size: tuple[int, int] | None = None) -> Iterator[tuple[int, np.ndarray]]:
         """The frames among ``indices``, in order, reduced ``reduce`` times: what the exposure survey
         needs, frames spread over the run, reached by :func:`_move`. The frames stop where the
-        stream does, or cannot be decoded further. ``workers`` and ``size`` are not used (a stream is read in order, its frames share
-        one size)."""
+        stream does, or cannot be decoded further. ``workers`` and ``size`` are not used (a stream
+        is read in order, its frames share one size)."""
         cap = cv2.VideoCapture(cv2_path(self.path))
         at = 0  # the stream's frame the next grab decodes
         try:
