@@ -9,12 +9,15 @@ stride lands on one rendered frame only; ``--codec``: ``mp4v``, MPEG-4 Part 2 by
 ``h264`` by PyAV with a key frame every 15 frames, as a GoPro, the renderer's own encoder), and
 times ``analyze(video, every=N)``
 on two workers for each N, taking turns over ``--repeat`` rounds (best of them). It also times
-reading the stream through without converting a frame (``grab`` only): the least any stride
-can take, since a compressed stream's frames must all be decoded in order. Prints, for each N,
+reading the stream through without converting a frame (``grab`` only): what passing over every
+frame costs, where none is sought. Prints, for each N,
 the recording's frames got through per second and the frames analysed per second.
-``--grab-too`` also times each N with no frame sought, every one grabbed up to those read, as
-before frames further apart than ``sources.SEEK_FRAMES`` were sought (by the exposure survey, and
-at such a stride by the analysis), in turn with the default.
+``--ways`` says how the frames between are passed over, each way timed in turn: ``measured``
+(the default: sought or grabbed by what each has cost in the stream, ``sources._Mover``),
+``beyond-300`` (sought only more than ``sources.SEEK_FRAMES`` apart, as before the costs were
+measured) and ``grab`` (never sought, as before that; ``--grab-too`` adds it).
+
+    PYTHONPATH=python python benches/bench_every.py --seconds 120 --every 30 60 150 --ways measured beyond-300 grab
 """
 
 from __future__ import annotations
@@ -34,6 +37,9 @@ from granseg.synth.frames import VIDEO_PLAYBACK_FPS as PLAYBACK_FPS
 from granseg.synth.frames import _encode
 
 RENDERED = 37
+# sources.SEEK_FRAMES and TRY_SEEK_FRAMES of each way of passing over the frames between
+WAYS = {"measured": (sources.SEEK_FRAMES, sources.TRY_SEEK_FRAMES), "beyond-300": (300, 300),
+        "grab": (10**12, 10**12)}
 
 
 def _video(d: Path, seconds: float, codec: str) -> Path:
@@ -69,10 +75,11 @@ def main() -> None:
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--codec", choices=("mp4v", "h264"), default="mp4v")
     ap.add_argument("--dir", type=Path, default=None, help="keep (or reuse) the video here")
-    ap.add_argument("--grab-too", action="store_true",
-                    help="also time each N with every frame grabbed, none sought")
+    ap.add_argument("--ways", nargs="+", choices=tuple(WAYS), default=["measured"],
+                    help="how the frames between those read are passed over")
+    ap.add_argument("--grab-too", action="store_true", help="also time each N with every frame grabbed (--ways grab)")
     args = ap.parse_args()
-    ways = {"": sources.SEEK_FRAMES} | ({" (no seek)": 10**12} if args.grab_too else {})
+    ways = {f" ({way})": WAYS[way] for way in dict.fromkeys(args.ways + (["grab"] if args.grab_too else []))}
     with tempfile.TemporaryDirectory() as tmp:
         d = args.dir if args.dir is not None else Path(tmp)
         d.mkdir(parents=True, exist_ok=True)
@@ -83,7 +90,7 @@ def main() -> None:
             n, took = grab_seconds(video)
             grab = min(grab, took)
             for k, way in best:  # taking turns, so that a busier spell hits each alike
-                sources.SEEK_FRAMES = ways[way]
+                sources.SEEK_FRAMES, sources.TRY_SEEK_FRAMES = ways[way]
                 start = time.perf_counter()
                 a = analyze(video, every=k, save=False, progress=False, workers=args.workers)
                 best[k, way] = min(best[k, way], time.perf_counter() - start)

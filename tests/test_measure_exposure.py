@@ -162,10 +162,62 @@ def test_the_survey_seeks_far_frames_of_a_video_and_lands_on_them(tmp_path, monk
         monkeypatch.undo()
         if every > 1:  # each kept frame sought, then one past the end, where the stream stops
             assert seeks[:len(grabbed)] == grabbed and len(seeks) <= len(grabbed) + 1
+            assert len(grabbed) <= video.sought <= len(seeks)
         else:
-            assert not seeks
+            assert not seeks and not video.sought
         seeks.clear()
         for i in wanted:
             target = first + i * every
             assert shown(read[i]) == target  # grabbed: the frame itself
             assert shown(sought[i]) == target
+
+
+class _TimedStream:
+    """A stand-in for a capture on a clock of its own: a grab takes 1 s, a seek ``seek`` s."""
+
+    def __init__(self, seek: float):
+        self.now, self.seek, self.calls = 0.0, seek, []
+
+    def clock(self) -> float:
+        return self.now
+
+    def grab(self) -> bool:
+        self.now += 1.0
+        self.calls.append("grab")
+        return True
+
+    def set(self, prop, value) -> bool:
+        self.now += self.seek
+        self.calls.append("seek")
+        return True
+
+
+@pytest.mark.parametrize(("seek", "gap", "later"), [(20.0, 60, "seek"), (165.0, 60, "grab"), (20.0, 32, "grab"),
+                                                    (165.0, 301, "seek"), (59.0, 60, "seek"), (61.0, 60, "grab")])
+def test_frames_between_are_sought_or_grabbed_by_what_each_has_cost_in_this_stream(seek, gap, later):
+    """Between TRY_SEEK_FRAMES and SEEK_FRAMES frames apart a video's frames are sought where its
+    seeks have cost less than grabbing the frames between, after a grab and TRIAL_SEEKS seeks to
+    learn both costs: a stream with key frames close together (a seek as dear as 20 grabs) is
+    sought at a stride of 60, one with them far apart (165) is grabbed through; nearer frames are
+    always grabbed, further ones always sought. A second pass through the stream uses what the
+    first learned."""
+    from granseg.measure import sources
+
+    stream = _TimedStream(seek)
+    mover = sources._Mover(stream.clock)
+    made = []
+    for k in range(8):
+        before = len(stream.calls)
+        assert mover.to(stream, k * (gap + 1), (k + 1) * (gap + 1) - 1)  # each frame read, then the gap to the next
+        made.append("seek" if "seek" in stream.calls[before:] else "grab")
+    if sources.TRY_SEEK_FRAMES < gap <= sources.SEEK_FRAMES:
+        assert made[:1 + sources.TRIAL_SEEKS] == ["grab"] + ["seek"] * sources.TRIAL_SEEKS  # learning
+        assert made[1 + sources.TRIAL_SEEKS:] == [later] * (7 - sources.TRIAL_SEEKS)
+    else:
+        assert made == [later] * 8
+    assert mover.grabs == stream.calls.count("grab")
+    assert mover.grab_seconds == pytest.approx(mover.grabs) and mover.seek_seconds == pytest.approx(seek * mover.seeks)
+    again = _TimedStream(seek)  # the next pass through the stream (the analysis's, after the survey's) learns nothing anew
+    for k in range(4):
+        assert mover.to(again, k * (gap + 1), (k + 1) * (gap + 1) - 1)
+    assert again.calls == ([later] if later == "seek" else ["grab"] * gap) * 4

@@ -3,7 +3,8 @@
 from __future__ import annotations
 
 import os
-from collections.abc import Iterator
+import time
+from collections.abc import Callable, Iterator
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
@@ -161,14 +162,21 @@ def _check_complete(path: Path, data: bytes) -> None:
         raise BadFrame(f"{path}: truncated PNG (no IEND chunk)")
 
 
-# Frames further apart in a stream than this are reached by a seek, not by decoding every frame
-# between. The exposure survey (measure.exposure) reads two dozen frames spread over the run:
-# grabbed, an hour of H.264 at 1920 x 1440 is a whole extra pass through the stream, where a seek
-# decodes from the key frame before its target, up to a camera's key-frame interval (GoPro: 1 s)
-# and OpenCV's own step back of 16. So does a stride of more than this (``analyze --every``).
-# Nearer frames are grabbed, as a seek then saves nothing (BENCHMARKS.md, "The exposure survey
-# seeks in a long video").
+# How the frames a video is not analysed at are passed over (:class:`_Mover`). A seek
+# (CAP_PROP_POS_FRAMES) decodes from the key frame before its target, after OpenCV's own step back
+# of 16 frames, so its cost does not grow with the distance but depends on the stream: 26 frames'
+# grabbing on the bench's MPEG-4, 22-33 in H.264 with a key frame every 15 (a GoPro's interval is
+# 1 s), 162-168 with x264's default of one every 250 (BENCHMARKS.md, "The exposure survey seeks
+# in a long video"). OpenCV does not tell the interval, so the stream's own costs decide:
+# - frames more than SEEK_FRAMES apart are always sought (a seek does not lose even at an
+#   interval of 250; the exposure survey of a long video, a stride of 10 s at 30 fps);
+# - frames TRY_SEEK_FRAMES or fewer apart are always grabbed (a seek decodes 16 or more);
+# - between, a seek is tried TRIAL_SEEKS times, and then made where the stream's seeks have so far
+#   cost less than grabbing the frames between (``analyze --every-seconds 2`` at 30 fps seeks
+#   where the key frames lie close, and grabs where they lie far apart).
 SEEK_FRAMES = 300
+TRY_SEEK_FRAMES = 32
+TRIAL_SEEKS = 2
 
 
 class VideoFrames:
@@ -177,7 +185,7 @@ class VideoFrames:
     ``first``, ``every``: frame i is the stream's frame first + i x every (:meth:`keep`; 0 and 1,
     all of them); the frames before and between are only grabbed or sought, not converted.
     ``expected`` is how many of those frames the header announces, ``decoded`` how many the last
-    full read found (None before one).
+    full read found (None before one), ``sought`` how many of them it reached by a seek.
     """
 
     def __init__(self, path: Path):
@@ -192,6 +200,8 @@ class VideoFrames:
             raise ValueError(f"{path}: not a video OpenCV can open")
         self.path = path
         self.decoded: int | None = None
+        self.sought = 0
+        self.mover = _Mover()
         self.keep()
 
     def keep(self, every: int = 1, first: int = 0) -> None:
@@ -209,11 +219,12 @@ class VideoFrames:
 
     def frames(self) -> Iterator[tuple[int, np.ndarray]]:
         """Decoded frames in order; stops at the end of the readable stream. Frames kept more than
-        SEEK_FRAMES apart (a long stride) are sought (:func:`_move`)."""
+        apart (a stride) are sought or grabbed through, whichever is cheaper (:class:`_Mover`)."""
         cap = cv2.VideoCapture(cv2_path(self.path))
         i, at = 0, 0  # at: the stream's frame the next grab decodes
+        seeks = self.mover.seeks
         try:
-            while _move(cap, at, self.first + i * self.every):
+            while self.mover.to(cap, at, self.first + i * self.every):
                 ok, img = cap.read()
                 if not ok:
                     break
@@ -224,12 +235,12 @@ class VideoFrames:
                 i += 1
         finally:
             cap.release()
-            self.decoded = i
+            self.decoded, self.sought = i, self.mover.seeks - seeks
 
     def some(self, indices: set[int], workers: int = 1, reduce: int = 1,
              size: tuple[int, int] | None = None) -> Iterator[tuple[int, np.ndarray]]:
         """The frames among ``indices``, in order, reduced ``reduce`` times: what the exposure survey
-        needs, frames spread over the run, reached by :func:`_move`. The frames stop where the
+        needs, frames spread over the run, reached by :class:`_Mover`. The frames stop where the
         stream does, or cannot be decoded further. ``workers`` and ``size`` are not used (a stream
         is read in order, its frames share one size)."""
         cap = cv2.VideoCapture(cv2_path(self.path))
@@ -237,7 +248,7 @@ class VideoFrames:
         try:
             for i in sorted(indices):
                 target = self.first + i * self.every
-                if not _move(cap, at, target) or not cap.grab():
+                if not self.mover.to(cap, at, target) or not cap.grab():
                     break
                 at = target + 1
                 ok, img = cap.retrieve()
@@ -247,15 +258,45 @@ class VideoFrames:
             cap.release()
 
 
-def _move(cap: cv2.VideoCapture, at: int, target: int) -> bool:
-    """Bring ``cap``, whose next grab decodes the stream's frame ``at``, to frame ``target``: sought
-    if more than SEEK_FRAMES ahead (OpenCV decodes forward from the key frame before it: the frame
-    itself in MPEG-4, H.264 and FFV1, tests/test_measure_exposure.py; a stream of another make might
-    land a frame off), else by grabbing the frames between (decoded, not converted to BGR). False
-    where the stream ends first."""
-    if target - at > SEEK_FRAMES and cap.set(cv2.CAP_PROP_POS_FRAMES, target):
-        return True
-    return _skipped(cap, target - at)
+class _Mover:
+    """Brings a capture of one stream to the frames asked for, by seeking or by grabbing the frames
+    between, whichever the stream's own costs so far say is cheaper (the rules at SEEK_FRAMES).
+
+    ``clock``: seconds (time.perf_counter; the tests give a clock of their own). The costs are
+    means over every seek and every frame grabbed through the mover, in every pass through the
+    stream (the exposure survey's and the analysis's), so what one pass learned the next uses.
+    """
+
+    def __init__(self, clock: Callable[[], float] = time.perf_counter):
+        self.clock = clock
+        self.seeks, self.seek_seconds = 0, 0.0
+        self.grabs, self.grab_seconds = 0, 0.0
+
+    def to(self, cap: cv2.VideoCapture, at: int, target: int) -> bool:
+        """Bring ``cap``, whose next grab decodes the stream's frame ``at``, to frame ``target``
+        (OpenCV's seek lands on the frame itself in MPEG-4, H.264 and FFV1,
+        tests/test_measure_exposure.py; a stream of another make might land a frame off). False
+        where the stream ends first."""
+        gap = target - at
+        if self._seek_pays(gap):
+            start = self.clock()
+            if cap.set(cv2.CAP_PROP_POS_FRAMES, target):
+                self.seeks, self.seek_seconds = self.seeks + 1, self.seek_seconds + self.clock() - start
+                return True
+        start = self.clock()
+        done = _skipped(cap, gap)
+        if gap > 0:
+            self.grabs, self.grab_seconds = self.grabs + gap, self.grab_seconds + self.clock() - start
+        return done
+
+    def _seek_pays(self, gap: int) -> bool:
+        if gap > SEEK_FRAMES:
+            return True
+        if gap <= TRY_SEEK_FRAMES or not self.grabs:  # what a grab costs is learned first
+            return False
+        if self.seeks < TRIAL_SEEKS:
+            return True
+        return self.seek_seconds / self.seeks < gap * self.grab_seconds / self.grabs
 
 
 def _skipped(cap: cv2.VideoCapture, n: int) -> bool:
