@@ -128,7 +128,7 @@ pub fn steady_state_stoppable(
             limits::MAX_SUB_STEPS
         )));
     }
-    let sub = (sub_steps.max(2) + 1) / 2 * 2;
+    let sub = sub_steps.max(2).div_ceil(2) * 2;
     let shooter = Shooter {
         p,
         delta: p.delta_over_h * p.h * (1.0 + p.delta_drift),
