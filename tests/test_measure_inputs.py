@@ -175,6 +175,56 @@ def test_frames_filmed_before_the_plate_started_are_left_out(tmp_path, capsys):
             analyze(early, save=False, progress=False)
 
 
+def _timed_video(d, video, seconds):
+    """The frames of folder ``d`` as a lossless (PNG in QuickTime, which records the frame count)
+    ``video``, frame k stamped ``seconds[k]``."""
+    import fractions
+
+    av = pytest.importorskip("av")
+    video.parent.mkdir()
+    images = [cv2.imread(str(p)) for p in sorted(d.glob("*.png"))]
+    with av.open(str(video), "w") as container:
+        stream = container.add_stream("png", rate=30)
+        stream.width, stream.height, stream.pix_fmt = images[0].shape[1], images[0].shape[0], "rgb24"
+        stream.time_base = fractions.Fraction(1, 1000)
+        for img, at in zip(images, seconds, strict=True):
+            frame = av.VideoFrame.from_ndarray(img, format="bgr24")
+            frame.pts, frame.time_base = round(1000 * at), fractions.Fraction(1, 1000)
+            for packet in stream.encode(frame):
+                container.mux(packet)
+        for packet in stream.encode():
+            container.mux(packet)
+    (video.parent / "experiment.json").write_text((d / "experiment.json").read_text())
+    return video
+
+
+def test_a_video_filmed_at_an_uneven_rate_is_flagged_by_its_frame_times(tmp_path):
+    """The map's times count frames (k / fps). A video whose own time stamps stray from an even rate
+    (a phone slowing from 30 to 10 frames/s halfway) fails the frame_times check, naming it; the same
+    frames stamped evenly pass it, and so does a time-lapse (frames filmed 2 s apart, played at 30
+    frames/s: even, only faster). A frames folder tells no times and is not checked."""
+    from granseg.measure import quality
+
+    d = tmp_path / "run"
+    render_frames(_map(8), seed=5, out_dir=d, **SMALL)
+    even = analyze(_timed_video(d, tmp_path / "even" / "run.mov", np.arange(8) / 30), save=False, progress=False)
+    (check,) = [c for c in even.quality.checks if c.name == "frame_times"]
+    assert check.passed and check.value < 0.2 * quality.FRAME_TIMES_SHARE  # stamps rounded to the ms
+    uneven_at = np.r_[np.arange(4) / 30, 3 / 30 + np.arange(1, 5) / 10]
+    with pytest.warns(QualityWarning, match="frame_times"):
+        uneven = analyze(_timed_video(d, tmp_path / "uneven" / "run.mov", uneven_at), save=False, progress=False)
+    (check,) = [c for c in uneven.quality.checks if c.name == "frame_times"]
+    assert not check.passed and check.value > 3 * quality.FRAME_TIMES_SHARE
+    assert np.array_equal(uneven.n, even.n) and np.array_equal(uneven.t, even.t)  # the same frames, the same times
+    assert "frame_times" in quality.ADVICE and "-fps_mode cfr" in quality.ADVICE["frame_times"]
+    lapse = tmp_path / "lapse" / "run.mov"
+    _timed_video(d, lapse, np.arange(8) / 30)
+    (lapse.parent / "experiment.json").write_text(json.dumps({**json.loads((d / "experiment.json").read_text()),
+                                                                "fps": 0.5}))
+    assert [c.passed for c in analyze(lapse, save=False, progress=False).quality.checks if c.name == "frame_times"] == [True]
+    assert "frame_times" not in {c.name for c in analyze(d, save=False, progress=False).quality.checks}
+
+
 @pytest.mark.parametrize("damage, message", [
     (lambda p: p.write_bytes(b""), "empty file"),
     (lambda p: p.write_bytes(p.read_bytes()[:2000]), "truncated PNG"),

@@ -249,7 +249,8 @@ def analyze(
     shift = _level_classes(spheres, seen)
     reduced = _assemble(spheres, seen, fps, smooth, names, bad)
     reduced.classes, reduced.first, reduced.every = classes, first, int(every)
-    reduced.quality = _assess(reduced, shift, reduce)
+    reduced.quality = _assess(reduced, shift, reduce,
+                              source.uneven_times() if isinstance(source, VideoFrames) else None)
     result = _in_frame_pixels(reduced, exp, reduce)
     if not result.quality.ok:
         warnings.warn(f"{exp.path.parent}: the map failed its quality checks: "
@@ -857,8 +858,10 @@ def _level_classes(spheres: list[FrameSpheres | None], exp: Experiment) -> tuple
     return shift, pairs
 
 
-def _assess(result: Analysis, shift: tuple[float, int] = (0.0, 0), reduce: int = 1) -> Quality:
-    """The quality record of ``result`` (analysed in frames reduced ``reduce`` times)."""
+def _assess(result: Analysis, shift: tuple[float, int] = (0.0, 0), reduce: int = 1,
+            frame_times: float | None = None) -> Quality:
+    """The quality record of ``result`` (analysed in frames reduced ``reduce`` times; ``frame_times``:
+    how far a video's frames stray from an even rate, quality.assess)."""
     good = [s for s in result.spheres if s is not None]
     first = good[0]
     learned = result.classes is not None
@@ -886,6 +889,7 @@ def _assess(result: Analysis, shift: tuple[float, int] = (0.0, 0), reduce: int =
         frames_reduced=reduce,
         frames_every=result.every,
         frames_first=result.first,
+        frame_times=frame_times,
     )
 
 

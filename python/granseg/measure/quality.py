@@ -117,6 +117,13 @@ VACANCY_SHARE = 0.05
 # are a lid line drawn out of a bed with bumps, whose hemispheres then enter
 # the band (BENCHMARKS.md, "The window's lines against the walls"). On those
 # trials the counts were 2-20 % off (median 6-9 %), c_raw up to 0.15.
+# A video's frames are taken as filmed at an even rate: the map's time of frame k is k / fps.
+# Where the stream's own time stamps stray from a straight line by more than this share of the
+# run's length, the map's times are off by as much. A round rule, not fitted to any run: one
+# frame dropped in an hour at 30 fps strays by 5e-6; a phone slowing from 30 to 20 frames/s for
+# one minute of ten by 0.016, ten seconds at worst; the test's phone, slowing to 10 frames/s for
+# the second half, by 0.12 (tests/test_measure_inputs.py).
+FRAME_TIMES_SHARE = 0.01
 WALL_LINE_BAND = (0.3, 1.2)
 WALL_LINE_QUANTILE = 20
 WALL_LINE_SLACK = 0.1
@@ -210,6 +217,10 @@ ADVICE = {
     "heavy_share_conserved": "the depth-mean heavy share drifts from c0: the window does not sample the "
                              "bed fairly, or the classes drift over the run",
     "bad_frames": "frames could not be read or showed no spheres; see the warnings above",
+    "frame_times": "the video was not filmed at an even rate (a phone's variable frame rate), but the map's times "
+                   "count frames (frame number / fps), so they are off by this share of the run: re-encode it at a "
+                   "constant rate (ffmpeg -i IN.mp4 -fps_mode cfr -r 30 OUT.mp4 repeats or drops frames so that "
+                   "frame k is filmed at k / 30 s) and analyse that",
 }
 
 
@@ -240,7 +251,8 @@ def assess(*, n: np.ndarray, n_heavy: np.ndarray, c0: float, first_heights: np.n
            gloss_at_spots: bool | None = None, vacant: tuple[int, int] | None = None,
            walls: WallLines | None = None, learned_from_end: bool = False,
            light_contrast: float | None = None, light_share: float | None = None,
-           frames_reduced: int = 1, frames_every: int = 1, frames_first: int = 0) -> Quality:
+           frames_reduced: int = 1, frames_every: int = 1, frames_first: int = 0,
+           frame_times: float | None = None) -> Quality:
     """Run every check on one analysed run.
 
     n, n_heavy: (n_t, n_layers) counts (rows of bad frames all zero);
@@ -288,7 +300,9 @@ def assess(*, n: np.ndarray, n_heavy: np.ndarray, c0: float, first_heights: np.n
     frames' pixels; frames_every: the map's rows are every this-many-th frame
     of the recording (the figure ``frames_every``), from its frame
     frames_first on (the figure ``frames_first``: > 0 where the camera was
-    started before the plate, a negative t0).
+    started before the plate, a negative t0); frame_times: how far a video's frames' own times
+    stray from an even rate, as a share of the run's length (``VideoFrames.uneven_times``; None:
+    frames from a directory, or a stream that tells no times: not checked).
     """
     n_t, n_layers = n.shape
     good = n.sum(axis=1) > 0
@@ -298,6 +312,9 @@ def assess(*, n: np.ndarray, n_heavy: np.ndarray, c0: float, first_heights: np.n
               *_detection_checks(scores, vacant, walls, settle),
               *_count_checks(n[good], n_heavy[good], c0),
               _check("bad_frames", n_bad_frames / max(n_t, 1), 0.05, "<=", "share of frames without a reading")]
+    if frame_times is not None:
+        checks.append(_check("frame_times", frame_times, FRAME_TIMES_SHARE, "<=",
+                             "largest stray of a frame's own time from an even rate, share of the run"))
     figures = {
         "spheres_per_frame": float(n[good].sum(axis=1).mean()) if good.any() else 0.0,
         "wall_detections_per_frame": float(wall_detections),

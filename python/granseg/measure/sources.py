@@ -185,7 +185,8 @@ class VideoFrames:
     ``first``, ``every``: frame i is the stream's frame first + i x every (:meth:`keep`; 0 and 1,
     all of them); the frames before and between are only grabbed or sought, not converted.
     ``expected`` is how many of those frames the header announces, ``decoded`` how many the last
-    full read found (None before one), ``sought`` how many of them it reached by a seek.
+    full read found (None before one), ``sought`` how many of them it reached by a seek, ``times``
+    the stream's own time [s] of each (its presentation time stamp; :meth:`uneven_times`).
     """
 
     def __init__(self, path: Path):
@@ -201,6 +202,7 @@ class VideoFrames:
         self.path = path
         self.decoded: int | None = None
         self.sought = 0
+        self.times: list[float] = []
         self.mover = _Mover()
         self.keep()
 
@@ -222,13 +224,14 @@ class VideoFrames:
         apart (a stride) are sought or grabbed through, whichever is cheaper (:class:`_Mover`)."""
         cap = cv2.VideoCapture(cv2_path(self.path))
         i, at = 0, 0  # at: the stream's frame the next grab decodes
-        seeks = self.mover.seeks
+        seeks, self.times = self.mover.seeks, []
         try:
             while self.mover.to(cap, at, self.first + i * self.every):
                 ok, img = cap.read()
                 if not ok:
                     break
                 at = self.first + i * self.every + 1
+                self.times.append(cap.get(cv2.CAP_PROP_POS_MSEC) / 1000.0)
                 if i >= len(self.names):
                     self.names.append(self.name(i))
                 yield i, img
@@ -236,6 +239,23 @@ class VideoFrames:
         finally:
             cap.release()
             self.decoded, self.sought = i, self.mover.seeks - seeks
+
+    def uneven_times(self) -> float | None:
+        """How far the last full read's frames were filmed off an even rate, as a share of the run's
+        length: the largest distance of a frame's own time (``times``) from the straight line
+        fitted to them all against their place in the stream. 0 for a constant frame rate, whatever
+        it is (a time-lapse video plays its frames faster than they were filmed, but evenly); one
+        frame dropped in an hour 5e-6; a phone's variable rate, slowing in dim light, per cents
+        (quality.FRAME_TIMES_SHARE). None where fewer than 3 frames were read or the stream tells
+        no times (all alike)."""
+        t = np.asarray(self.times, dtype=float)
+        k = self.first + self.every * np.arange(len(t), dtype=float)
+        if len(t) < 3 or not np.all(np.isfinite(t)) or np.ptp(t) <= 0:
+            return None
+        slope, offset = np.polyfit(k, t, 1)
+        if slope <= 0:
+            return None
+        return float(np.max(np.abs(t - offset - slope * k)) / (slope * (k[-1] - k[0])))
 
     def some(self, indices: set[int], workers: int = 1, reduce: int = 1,
              size: tuple[int, int] | None = None) -> Iterator[tuple[int, np.ndarray]]:
