@@ -117,6 +117,9 @@ VACANCY_SHARE = 0.05
 # are a lid line drawn out of a bed with bumps, whose hemispheres then enter
 # the band (BENCHMARKS.md, "The window's lines against the walls"). On those
 # trials the counts were 2-20 % off (median 6-9 %), c_raw up to 0.15.
+WALL_LINE_BAND = (0.3, 1.2)
+WALL_LINE_QUANTILE = 20
+WALL_LINE_SLACK = 0.1
 # A video's frames are taken as filmed at an even rate: the map's time of frame k is k / fps.
 # Where the stream's own time stamps stray from a straight line by more than this share of the
 # run's length, the map's times are off by as much. A round rule, not fitted to any run: one
@@ -124,9 +127,6 @@ VACANCY_SHARE = 0.05
 # one minute of ten by 0.016, ten seconds at worst; the test's phone, slowing to 10 frames/s for
 # the second half, by 0.12 (tests/test_measure_inputs.py).
 FRAME_TIMES_SHARE = 0.01
-WALL_LINE_BAND = (0.3, 1.2)
-WALL_LINE_QUANTILE = 20
-WALL_LINE_SLACK = 0.1
 
 
 @dataclass(frozen=True)
@@ -220,7 +220,7 @@ ADVICE = {
     "frame_times": "the video was not filmed at an even rate (a phone's variable frame rate), but the map's times "
                    "count frames (frame number / fps), so they are off by this share of the run: re-encode it at a "
                    "constant rate (ffmpeg -i IN.mp4 -fps_mode cfr -r 30 OUT.mp4 repeats or drops frames so that "
-                   "frame k is filmed at k / 30 s) and analyse that",
+                   "frame k is the one filmed at k / 30 s) and analyse that",
 }
 
 

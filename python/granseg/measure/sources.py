@@ -220,8 +220,9 @@ class VideoFrames:
         return len(self.names)
 
     def frames(self) -> Iterator[tuple[int, np.ndarray]]:
-        """Decoded frames in order; stops at the end of the readable stream. Frames kept more than
-        apart (a stride) are sought or grabbed through, whichever is cheaper (:class:`_Mover`)."""
+        """Decoded frames in order; stops at the end of the readable stream. The frames between those
+        kept (a stride) are sought past or grabbed through, whichever is cheaper (:class:`_Mover`);
+        each frame's own time is recorded (``times``)."""
         cap = cv2.VideoCapture(cv2_path(self.path))
         i, at = 0, 0  # at: the stream's frame the next grab decodes
         seeks, self.times = self.mover.seeks, []
