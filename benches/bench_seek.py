@@ -3,9 +3,9 @@
     PYTHONPATH=python python benches/bench_seek.py [--seconds 100] [--every 30 60 150] [--gop 15 250] [--dir DIR]
 
 Renders 37 frames of the throughput bench's look (steel/PP) at 640 x 480 (D = 13 px), writes them
-over and over as ``--seconds`` of H.264 at 30 fps with a key frame every ``--gop`` frames (PyAV's
-x264, preset medium, so B-frames too: a GoPro's interval is 1 s, x264's own default 250), and
-MPEG-4 Part 2 as OpenCV writes it. For each stream and stride N it times
+over and over as ``--seconds`` of H.264 at 30 fps with a key frame every ``--gop`` frames at most
+(the renderer's encoder, PyAV's x264, preset medium, so B-frames too: a GoPro's interval is 1 s,
+x264's own default 250), and MPEG-4 Part 2 as OpenCV writes it (a key frame every 12). For each stream and stride N it times
 ``VideoFrames.frames()`` (frames 0, N, 2N, ... decoded and converted, nothing analysed) three
 ways, in turn over ``--repeat`` rounds (best of them): ``measured`` (the default: sought or
 grabbed by what each has cost in this stream), ``beyond-300`` (sought only more than 300 frames
@@ -16,6 +16,7 @@ seeks the measured way made, and checks that every way gives the same frames, to
 from __future__ import annotations
 
 import argparse
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -24,46 +25,28 @@ import numpy as np
 
 from granseg.measure import sources
 from granseg.synth import render_frames
+from granseg.synth.frames import VIDEO_PLAYBACK_FPS as FPS
+from granseg.synth.frames import _encode
 
-RENDERED = 37
-FPS = 30
-WAYS = {"measured": (sources.SEEK_FRAMES, sources.TRY_SEEK_FRAMES), "beyond-300": (300, 300),
-        "grab": (10**12, 10**12)}
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from bench_every import RENDERED, WAYS  # noqa: E402
 
 
 def _streams(d: Path, seconds: float, gops: list[int]) -> dict[str, Path]:
-    """``d``/h264-gopG.mp4 for each G and ``d``/mpeg4.avi: the rendered frames in turn for ``seconds``."""
-    import av
-    import cv2
-
+    """``d``/h264-gopG.mp4 for each G and ``d``/mpeg4.mp4: the rendered frames in turn for ``seconds``."""
     c = np.zeros((RENDERED, 15))
     c[:, 8:] = 1.0
     c[1:] = 0.5
     frames = render_frames(c, heavy="steel", light="pp", particle_diameter_px=13.0, image_size=(640, 480),
                            out_dir=d / "frames", force=True, experiment={"fps": None}).images
-    n = int(seconds * FPS)
-    paths = {f"H.264, key frame every {g}": d / f"h264-gop{g}.mp4" for g in gops} | {"MPEG-4 (OpenCV)": d / "mpeg4.avi"}
-    for g in gops:
-        path = paths[f"H.264, key frame every {g}"]
-        if path.exists():
-            continue
-        with av.open(str(path), "w") as container:
-            stream = container.add_stream("libx264", rate=FPS)
-            stream.width, stream.height, stream.pix_fmt = 640, 480, "yuv420p"
-            stream.bit_rate = 2_000_000
-            stream.codec_context.gop_size = g
-            stream.options = {"preset": "medium", "keyint": str(g), "min-keyint": str(g), "scenecut": "0"}
-            for k in range(n):
-                for packet in stream.encode(av.VideoFrame.from_ndarray(frames[k % RENDERED], format="bgr24")):
-                    container.mux(packet)
-            for packet in stream.encode():
-                container.mux(packet)
-    mpeg4 = paths["MPEG-4 (OpenCV)"]
-    if not mpeg4.exists():
-        writer = cv2.VideoWriter(str(mpeg4), cv2.VideoWriter_fourcc(*"mp4v"), FPS, (640, 480))
-        for k in range(n):
-            writer.write(frames[k % RENDERED])
-        writer.release()
+    run = [frames[k % RENDERED] for k in range(int(seconds * FPS))]
+    paths = {f"H.264, key frame every {g}": d / f"h264-gop{g}.mp4" for g in gops}
+    for g, path in zip(gops, paths.values(), strict=True):
+        if not path.exists():
+            _encode(run, path, "h264", None, key_every=g)
+    paths["MPEG-4 (OpenCV)"] = d / "mpeg4.mp4"
+    if not paths["MPEG-4 (OpenCV)"].exists():
+        _encode(run, paths["MPEG-4 (OpenCV)"], "mp4v", None)  # OpenCV's writer: a key frame every 12
     return paths
 
 
@@ -107,7 +90,7 @@ def main() -> None:
                         if way == "measured":
                             seeks[name, k] = made
                     assert got["measured"] == got["beyond-300"] == got["grab"], f"{name}, every {k}: frames differ"
-    print(f"{args.seconds:g} s at {FPS} fps, 640 x 480, frames 0, N, 2N, ... decoded; best of {args.repeat} "
+    print(f"{args.seconds:g} s at {FPS:g} fps, 640 x 480, frames 0, N, 2N, ... decoded; best of {args.repeat} "
           "[s]; every way gave the same frames")
     print("| stream | N | measured (seeks made) | beyond 300 | grab |")
     print("|---|---|---|---|---|")

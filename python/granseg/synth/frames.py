@@ -1020,7 +1020,10 @@ def _video(result: RenderedFrames, app: dict[str, Any], out_dir, force: bool) ->
     return images, [path, save_json(out / "experiment.json", result.experiment, force=force)]
 
 
-def _encode(images: list[np.ndarray], path: Path, codec: str, bitrate: float | None) -> None:
+def _encode(images: list[np.ndarray], path: Path, codec: str, bitrate: float | None, key_every: int = 15) -> None:
+    """``images`` as a video at ``path``: ``codec`` "mp4v" with no ``bitrate`` by OpenCV (a key frame
+    every 12), else by PyAV ("h264" or MPEG-4 at ``bitrate``), a key frame every ``key_every``
+    frames at most (15: every half second, as a GoPro)."""
     h, w = images[0].shape[:2]
     if codec == "mp4v" and bitrate is None:
         writer = cv2.VideoWriter(cv2_path(path), cv2.VideoWriter_fourcc(*"mp4v"), VIDEO_PLAYBACK_FPS, (w, h))
@@ -1042,7 +1045,7 @@ def _encode(images: list[np.ndarray], path: Path, codec: str, bitrate: float | N
         stream = container.add_stream("libx264" if codec == "h264" else "mpeg4", rate=int(VIDEO_PLAYBACK_FPS))
         stream.width, stream.height, stream.pix_fmt = w + (w % 2), h + (h % 2), "yuv420p"
         stream.bit_rate = int(bitrate)
-        stream.codec_context.gop_size = 15  # a key frame every half second, as a GoPro
+        stream.codec_context.gop_size = key_every
         if codec == "h264":
             stream.options = {"preset": "medium", "threads": "1"}
         for img in images:
