@@ -30,6 +30,15 @@ spheres found that are in the wrong class.
 ``--no-light-field`` leaves the light over the view on the features the
 classes read (the maps before ``classify.LightField``).
 
+``--diameter-given F [F ...]`` analyses every run once per F with
+``particle_diameter_px`` given F times the true one (a user's measurement
+off), reported as ``scene@dF``; each line gives the spacing the
+``sphere_spacing`` check reads (the median distance to the nearest sphere
+found, in diameters of the one given):
+
+    PYTHONPATH=python python benches/bench_measure_accuracy.py --scenes S-POM-25 C-PP-90 --seeds 7 8 \
+        --diameter-given 0.9 1 1.1
+
 ``--smeared always`` keeps the classes learned with smeared copies too
 (what analyze did before the blur test), ``never`` those learned from
 sharp spheres only; each run's line says which the test kept and how many
@@ -84,6 +93,7 @@ def score(r, a) -> dict:
            "vacancies": next((c.value for c in a.quality.checks if c.name == "vacancies"), None),
            "window_lines": next((c.value for c in a.quality.checks if c.name == "window_lines"), None),
            "ambiguous_spheres": next((c.value for c in a.quality.checks if c.name == "ambiguous_spheres"), None),
+           "sphere_spacing_d": a.quality.figures.get("sphere_spacing_d"),
            "wall_shifted_count_error": _wall_shifted_count_error(r, a),
            **_blur_figures(a)}
     for name, errs in errors.items():
@@ -156,6 +166,16 @@ def force_light_field(on: bool) -> None:
     classify.LEVEL_LIGHT = on
 
 
+def _give_diameter(path: Path, experiment: dict, factor: float) -> None:
+    """Write ``experiment`` (as rendered) to ``path`` with particle_diameter_px ``factor`` times the true one."""
+    path.write_text(json.dumps({**experiment, "particle_diameter_px": factor * experiment["particle_diameter_px"]}),
+                    encoding="utf-8")
+
+
+def _or_nan(value: float | None) -> float:
+    return float("nan") if value is None else value
+
+
 def _setting(item: str) -> tuple[str, object]:
     key, sep, value = item.partition("=")
     if not sep:
@@ -203,6 +223,8 @@ def main() -> None:
                     help="classes from the features as measured, the light over the view left on them")
     ap.add_argument("--reduce", type=int, default=None, metavar="K",
                     help="analyse the frames reduced K times (analyze's reduce; default: its own choice)")
+    ap.add_argument("--diameter-given", type=float, nargs="+", default=[1.0], metavar="F",
+                    help="analyse each run with particle_diameter_px given F times the true one, once per F")
     ap.add_argument("--json", type=Path, default=None, help="also write the figures here")
     args = ap.parse_args()
     force_smeared(args.smeared)
@@ -211,34 +233,42 @@ def main() -> None:
     scenes = scene_names() if "all" in args.scenes else args.scenes
     results = {}
     for scene, (variant, changes) in itertools.product(scenes, args.variants.items()):
-        name = f"{scene}+{variant}" if variant else scene
-        runs, detected, true = {}, 0, 0
+        base = f"{scene}+{variant}" if variant else scene
+        names = {f: f"{base}@d{f:g}" if args.diameter_given != [1.0] else base for f in args.diameter_given}
+        runs, detected, true = ({name: {} for name in names.values()}, dict.fromkeys(names.values(), 0),
+                                dict.fromkeys(names.values(), 0))
         for seed in args.seeds:
             with tempfile.TemporaryDirectory() as tmp:
                 r = render_scene(scene, args.frames, end=args.end, seed=seed, out_dir=Path(tmp),
                                  **{**overrides, **changes})
-                with warnings.catch_warnings():
-                    warnings.simplefilter("ignore", QualityWarning)  # scored below
-                    a = analyze(r.source, smooth=1, save=False, progress=False, workers=2,
-                                ends_unmixed=args.ends_unmixed, reduce=args.reduce)
-            runs[seed] = s = score(r, a)
-            detected, true = detected + a.n.sum(axis=0), true + r.n.sum(axis=0)
-            print(f"{name:28s} seed {seed:3d}: recall {s['recall']:.3f} precision {s['precision']:.3f} "
-                  f"wrong class {s['wrong_class']:.4f} RMSD {s['rmsd']:.4f} frame-layer count {s['frame_layer_count_error']:.3f} "
-                  f"worst layer {s['worst_layer_count_error']:.3f} quality "
-                  f"{'ok' if s['quality_ok'] else 'FAILED ' + ','.join(s['failed_checks'])} "
-                  f"(centres_settled {s['centres_settled']:.2f}, vacancies {s['vacancies']:.3f}, window_lines {s['window_lines']:.3f}, "
-                  f"ambiguous {s['ambiguous_spheres'] if s['ambiguous_spheres'] is not None else float('nan'):.4f}; smeared classes "
-                  f"{'kept' if s['classes_learned_smeared'] else 'not kept'}, "
-                  f"{s['blur_disagreements_near_plate']}/{s['blur_disagreements']} near the plate; gloss "
-                  f"{'at learned spots' if s['gloss_at_learned_spots'] else 'by maxima'}; light share "
-                  f"{s['light_share_of_class_gap'] if s['light_share_of_class_gap'] is not None else float('nan'):.2f}"
-                  f"{', taken off' if s['light_over_view'] is not None else ''}) | bias heavy "
-                  f"{s['heavy_bias_px']} light {s['light_bias_px']} px, p95 {s['heavy_p95_px']:.2f} "
-                  f"{s['light_p95_px']:.2f} px", flush=True)
-        pooled = float((np.abs(detected - true) / true).max())
-        print(f"{name:28s} pooled over {len(args.seeds)} seeds: worst layer count error {pooled:.3f}")
-        results[name] = {"runs": runs, "pooled_worst_layer_count_error": pooled}
+                analysed = {}
+                for f in args.diameter_given:
+                    _give_diameter(Path(tmp) / "experiment.json", r.experiment, f)
+                    with warnings.catch_warnings():
+                        warnings.simplefilter("ignore", QualityWarning)  # scored below
+                        analysed[f] = analyze(r.source, smooth=1, save=False, progress=False, workers=2,
+                                              ends_unmixed=args.ends_unmixed, reduce=args.reduce)
+            for f, a in analysed.items():
+                name = names[f]
+                runs[name][seed] = s = score(r, a)
+                detected[name], true[name] = detected[name] + a.n.sum(axis=0), true[name] + r.n.sum(axis=0)
+                print(f"{name:28s} seed {seed:3d}: recall {s['recall']:.3f} precision {s['precision']:.3f} "
+                      f"wrong class {s['wrong_class']:.4f} RMSD {s['rmsd']:.4f} frame-layer count {s['frame_layer_count_error']:.3f} "
+                      f"worst layer {s['worst_layer_count_error']:.3f} quality "
+                      f"{'ok' if s['quality_ok'] else 'FAILED ' + ','.join(s['failed_checks'])} "
+                      f"(centres_settled {s['centres_settled']:.2f}, vacancies {s['vacancies']:.3f}, window_lines {s['window_lines']:.3f}, "
+                      f"ambiguous {_or_nan(s['ambiguous_spheres']):.4f}; smeared classes "
+                      f"{'kept' if s['classes_learned_smeared'] else 'not kept'}, "
+                      f"{s['blur_disagreements_near_plate']}/{s['blur_disagreements']} near the plate; gloss "
+                      f"{'at learned spots' if s['gloss_at_learned_spots'] else 'by maxima'}; light share "
+                      f"{_or_nan(s['light_share_of_class_gap']):.2f}"
+                      f"{', taken off' if s['light_over_view'] is not None else ''}) | bias heavy "
+                      f"{s['heavy_bias_px']} light {s['light_bias_px']} px, p95 {s['heavy_p95_px']:.2f} "
+                      f"{s['light_p95_px']:.2f} px; spacing {_or_nan(s['sphere_spacing_d']):.3f} d", flush=True)
+        for name in names.values():
+            pooled = float((np.abs(detected[name] - true[name]) / true[name]).max())
+            print(f"{name:28s} pooled over {len(args.seeds)} seeds: worst layer count error {pooled:.3f}")
+            results[name] = {"runs": runs[name], "pooled_worst_layer_count_error": pooled}
     print(_wall_shift_summary(results))
     if args.json is not None:
         save_json(args.json, {"command": " ".join(sys.argv), "frames": args.frames, "results": results}, force=True)

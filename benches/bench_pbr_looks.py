@@ -34,7 +34,10 @@ family, then left alone).
 from __future__ import annotations
 
 import argparse
+import json
+import shutil
 import sys
+import tempfile
 import warnings
 from pathlib import Path
 
@@ -46,7 +49,13 @@ from granseg.measure import analyze
 from granseg.synth.pbr import load_fixture
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_measure_accuracy import _blur_figures, force_light_field, force_smeared  # noqa: E402
+from bench_measure_accuracy import (  # noqa: E402
+    _blur_figures,
+    _give_diameter,
+    _or_nan,
+    force_light_field,
+    force_smeared,
+)
 
 PBR = Path(__file__).resolve().parents[1] / "tests" / "fixtures" / "pbr"
 
@@ -91,13 +100,19 @@ def _spy_on_learning(choice: str = "auto") -> list[dict]:
     return seen
 
 
-def measure(folder: Path, look: str, seen: list[dict]) -> dict:
+def measure(folder: Path, look: str, seen: list[dict], diameter_given: float = 1.0) -> dict:
+    """The figures of one look, analysed with particle_diameter_px ``diameter_given`` times its own."""
     truth = load_fixture(folder / look)
     seen.clear()
-    with warnings.catch_warnings():
+    with warnings.catch_warnings(), tempfile.TemporaryDirectory() as tmp:
         warnings.simplefilter("ignore")
-        a = analyze(folder / look, smooth=1, save=False, progress=False, workers=2)
-    d = a.experiment.particle_diameter_px
+        source = folder / look
+        if diameter_given != 1.0:  # a copy, the fixture left as it is
+            source = Path(shutil.copytree(source, Path(tmp) / look))
+            _give_diameter(source / "experiment.json", json.loads((source / "experiment.json").read_text()),
+                           diameter_given)
+        a = analyze(source, smooth=1, save=False, progress=False, workers=2)
+    d = truth.experiment["particle_diameter_px"]  # the true one, whatever diameter was given
     found = total = wrong = 0
     for i, s in enumerate(a.spheres):
         p = truth.particles[i]
@@ -118,6 +133,7 @@ def measure(folder: Path, look: str, seen: list[dict]) -> dict:
            "vacancies": float(checks["vacancies"].value) if "vacancies" in checks else None,
            "window_lines": float(checks["window_lines"].value) if "window_lines" in checks else None,
            "ambiguous_spheres": float(checks["ambiguous_spheres"].value) if "ambiguous_spheres" in checks else None,
+           "sphere_spacing_d": a.quality.figures.get("sphere_spacing_d"),
            "quality_ok": bool(a.quality.ok), "failed_checks": [c.name for c in a.quality.failed],
            **_blur_figures(a)}
     # the whole frame's polarity comes first, then one per band (learn_templates' order)
@@ -154,6 +170,8 @@ def main() -> None:
                     help="keep the classes learned with smeared copies: as the blur test says, always, never")
     ap.add_argument("--no-light-field", action="store_true",
                     help="classes from the features as measured, the light over the view left on them")
+    ap.add_argument("--diameter-given", type=float, default=1.0, metavar="F",
+                    help="analyse each look with particle_diameter_px given F times its own (a copy of the look)")
     ap.add_argument("--json", type=Path, default=None, help="also write the figures here")
     args = ap.parse_args()
     force_smeared(args.smeared)
@@ -163,7 +181,7 @@ def main() -> None:
     seen = _spy_on_learning(args.choice) if args.polarities else []
     results = {}
     for look in looks:
-        r = results[look] = measure(args.dir, look, seen)
+        r = results[look] = measure(args.dir, look, seen, args.diameter_given)
         settled = "-" if r["centres_settled"] is None else f"{r['centres_settled']:.2f}"
         vacant = "-" if r["vacancies"] is None else f"{r['vacancies']:.3f}"
         lines = "-" if r["window_lines"] is None else f"{r['window_lines']:.3f}"
@@ -171,11 +189,12 @@ def main() -> None:
         line = (f"{look:18s} recall {r['recall']:.3f}  c_raw RMSD {r['rmsd']:.3f}  per-frame layer counts "
                 f"{100 * r['frame_layer_count_error']:4.1f} %  wrong class {100 * r['wrong_class']:.1f} %  "
                 f"centres_settled {settled}  vacancies {vacant}  window_lines {lines}  ambiguous {unsure}  "
+                f"spacing {_or_nan(r['sphere_spacing_d']):.3f} d  "
                 f"{'ok' if r['quality_ok'] else 'flagged: ' + ', '.join(r['failed_checks'])}  smeared classes "
                 f"{'kept' if r['classes_learned_smeared'] else 'not kept'} "
                 f"({r['blur_disagreements_near_plate']}/{r['blur_disagreements']} near the plate), gloss "
                 f"{'at learned spots' if r['gloss_at_learned_spots'] else 'by maxima'}, light share "
-                f"{r['light_share_of_class_gap'] if r['light_share_of_class_gap'] is not None else float('nan'):.2f}"
+                f"{_or_nan(r['light_share_of_class_gap']):.2f}"
                 f"{' (taken off)' if r['light_over_view'] is not None else ''}")
         if args.polarities:
             line += f"  | bands {r['band_polarities']}"
@@ -193,7 +212,7 @@ def main() -> None:
         print(line, flush=True)
     if args.json is not None:
         save_json(args.json, {"command": " ".join(sys.argv), "dir": str(args.dir), "choice": args.choice,
-                              "smeared": args.smeared,
+                              "smeared": args.smeared, "diameter_given": args.diameter_given,
                               "results": results}, force=True)
 
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import json
+import re
 import warnings
 from pathlib import Path
 
@@ -34,11 +35,13 @@ from granseg.measure.classify import (
 from granseg.measure.experiment import load_experiment
 from granseg.measure.exposure import DRIFT_LIMIT
 from granseg.measure.quality import (
+    SPACING_SLACK,
     VACANCY_GAP,
     WALL_LINE_SLACK,
     Quality,
     WallLines,
     assess,
+    sphere_spacing,
     vacancies,
     wall_lines,
 )
@@ -271,6 +274,48 @@ def test_a_window_drawn_off_the_lid_is_flagged(tmp_path):
     assert "window_lines" not in [c.name for c in right.quality.failed], right.quality.report()
     assert "window_lines" in [c.name for c in off.quality.failed], off.quality.report()
     assert np.sqrt(np.nanmean((off.c_raw - r.c_raw) ** 2)) > np.sqrt(np.nanmean((right.c_raw - r.c_raw) ** 2))
+
+
+@pytest.mark.parametrize("lattice", ["hexagonal", "square"])
+def test_touching_spheres_lie_a_diameter_apart(lattice):
+    """Touching spheres read 1 in their own diameter, and 1.25 in a diameter given a fifth too small;
+    spheres beside the window are neighbours of those at its sides, not asked about themselves."""
+    d, window = 30.0, (100.0, 50.0, 400.0, 500.0)
+    centres = _packed(lattice, d, window)
+    inside = (centres[:, 0] >= window[0]) & (centres[:, 0] < window[2])
+    frames = [(centres[inside], centres[~inside])] * 3
+    assert sphere_spacing(frames, d) == pytest.approx(1.0)
+    assert sphere_spacing(frames, 0.8 * d) == pytest.approx(1.25)
+    # alone, the sphere at the window's side in a square row has only the one beside it inside
+    row = np.column_stack([np.arange(5) * d, np.zeros(5)])
+    assert sphere_spacing([(row[:1], row[1:])], d) == pytest.approx(1.0)
+    assert np.isnan(sphere_spacing([(row[:1], np.zeros((0, 2)))], d))
+    assert np.isnan(sphere_spacing([], d))
+
+
+def test_a_diameter_given_wrong_is_flagged_with_the_spacing_found(tmp_path):
+    """Frames analysed with particle_diameter_px right pass the spacing check; given 20 % too large
+    or too small, it fails and names the spacing the spheres do have: the diameter right, to within a
+    tenth of it (with the diameter given so far off, the spheres are found a little off too)."""
+    render_frames(stratified_map(4, 0.5), seed=5, out_dir=tmp_path, heavy="ceramic", light="pp", **SMALL)
+    exp_path = tmp_path / "experiment.json"
+    exp = json.loads(exp_path.read_text())
+    d = exp["particle_diameter_px"]
+
+    def spacing_check(given):
+        exp_path.write_text(json.dumps({**exp, "particle_diameter_px": given}))
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", QualityWarning)
+            a = analyze(tmp_path, smooth=1, save=False, progress=False, workers=2)
+        check = next(c for c in a.quality.checks if c.name == "sphere_spacing")
+        return check, float(re.search(r"the spheres lie ([0-9.]+) px apart", check.about).group(1))
+
+    right, apart = spacing_check(d)
+    assert right.passed and right.value < 0.5 * SPACING_SLACK, right.line()
+    for given in (1.2 * d, 0.8 * d):
+        wrong, found = spacing_check(given)
+        assert not wrong.passed, wrong.line()
+        assert found == pytest.approx(apart, abs=0.1 * d), wrong.line()
 
 
 def test_quality_is_stored_in_the_map_and_refused_downstream(tmp_path):

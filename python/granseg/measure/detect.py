@@ -58,8 +58,8 @@ from typing import Any
 
 import cv2
 import numpy as np
-from scipy.spatial import cKDTree
 
+from granseg.measure.layers import nearest_spacing
 from granseg.measure.outline import N_FIT_RAYS, Outlines, fit_outlines, outline_bias, refine_circles
 from granseg.measure.templates import (
     Templates,
@@ -773,13 +773,9 @@ def _packing(spheres: list[np.ndarray], d: float) -> float:
     that finds a material's gaps as well as its spheres. A common shift of
     one material's centres leaves it unchanged.
     """
-    medians = []
-    for s in spheres:
-        if len(s) < 3:
-            return 0.0
-        dist, _ = cKDTree(s).query(s, k=2)
-        medians.append(float(np.median(dist[:, 1])) / d)
-    return min(medians)
+    if any(len(s) < 3 for s in spheres):
+        return 0.0
+    return min(nearest_spacing(s) / d for s in spheres)
 
 
 def _templates_from_seeds(image: np.ndarray, seeds: np.ndarray, d: float, sign: int,

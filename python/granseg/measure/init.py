@@ -49,7 +49,8 @@ HELP: dict[str, str] = {
     "dist_coeffs": "OpenCV distortion coefficients [k1,k2,p1,p2,k3], from granseg calibrate-camera",
     "window": "investigation window [x0,y0,x1,y1] in undistorted pixels: y0 at the lid, y1 at the plate, "
               "x0..x1 the width to count; read it off the preview NAME_window.png beside the frames",
-    "particle_diameter_px": "sphere diameter in undistorted pixels (default: window height / 15 layers)",
+    "particle_diameter_px": "sphere diameter in undistorted pixels (default: window height / 15 layers); "
+                            "analyze's check sphere_spacing says when the spheres found are not this size",
 }
 
 

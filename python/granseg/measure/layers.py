@@ -1,12 +1,14 @@
-"""Bin sphere centres into the window's horizontal layers (layer 0 at the bottom)."""
+"""Bin sphere centres into the window's horizontal layers (layer 0 at the bottom); how far apart they lie."""
 
 from __future__ import annotations
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from granseg.constants import N_LAYERS
 
-__all__ = ["N_LAYERS", "WALL_CLEARANCE", "across", "clear_of_walls", "height", "in_window", "layer_index", "layer_counts"]
+__all__ = ["N_LAYERS", "WALL_CLEARANCE", "across", "clear_of_walls", "height", "in_window", "layer_index", "layer_counts",
+           "nearest_spacing"]
 
 # A free sphere's centre lies at least half a diameter from the lid and the
 # plate (more between the bumps). The hemispheres fixed to both walls, one
@@ -61,3 +63,15 @@ def layer_counts(x: np.ndarray, y: np.ndarray, heavy: np.ndarray,
     n = np.bincount(j, minlength=n_layers)
     nh = np.bincount(j[np.asarray(heavy, dtype=bool)[inside]], minlength=n_layers)
     return n, nh
+
+
+def nearest_spacing(centres: np.ndarray, beside: np.ndarray | None = None) -> float:
+    """The median distance [px] from each of ``centres`` (k, 2) to the nearest other sphere, among
+    them and ``beside`` (j, 2; neighbours not asked about themselves); NaN where there is none.
+
+    Spheres at a wall touch their neighbours, so in a packed bed this is about a diameter."""
+    centres = np.asarray(centres, dtype=float).reshape(-1, 2)
+    known = centres if beside is None else np.concatenate([centres, np.asarray(beside, dtype=float).reshape(-1, 2)])
+    if len(centres) == 0 or len(known) < 2:
+        return float("nan")
+    return float(np.median(cKDTree(known).query(centres, k=2)[0][:, 1]))

@@ -45,7 +45,14 @@ from granseg.measure.layers import (
 )
 from granseg.measure.outline import class_shift
 from granseg.measure.preview import check_previews, write_previews
-from granseg.measure.quality import Quality, QualityWarning, assess, vacancies, wall_lines
+from granseg.measure.quality import (
+    Quality,
+    QualityWarning,
+    assess,
+    sphere_spacing,
+    vacancies,
+    wall_lines,
+)
 from granseg.measure.sources import BadFrame, FrameDirectory, VideoFrames, check_size, open_frames
 from granseg.measure.wall import remove_wall_glare
 
@@ -865,6 +872,8 @@ def _assess(result: Analysis, shift: tuple[float, int] = (0.0, 0), reduce: int =
     good = [s for s in result.spheres if s is not None]
     first = good[0]
     learned = result.classes is not None
+    sample = _sampled(good)
+    d = result.experiment.particle_diameter_px
     return assess(
         n=result.n, n_heavy=result.n_heavy, c0=result.experiment.c0,
         first_heights=height(first.y, result.experiment.window), first_heavy=first.heavy,
@@ -881,7 +890,7 @@ def _assess(result: Analysis, shift: tuple[float, int] = (0.0, 0), reduce: int =
         blur=result.classes.blur if learned else None,
         placed={name: np.concatenate([s.placed[name] for s in good]) for name in good[0].placed},
         gloss_at_spots=result.classes.gloss_at_spots if learned else None,
-        vacant=_vacant(good, result.experiment),
+        vacant=_vacant(sample, result.experiment),
         walls=wall_lines(np.r_[first.y, first.wall_y], result.experiment.window),
         learned_from_end=learned and result.classes.both_ends,
         light_contrast=result.classes.field.contrast() if learned and result.classes.field is not None else None,
@@ -890,22 +899,28 @@ def _assess(result: Analysis, shift: tuple[float, int] = (0.0, 0), reduce: int =
         frames_every=result.every,
         frames_first=result.first,
         frame_times=frame_times,
+        spacing=(sphere_spacing([(np.column_stack([s.x, s.y]), s.beside) for s in sample], d), d * reduce),
     )
 
 
-# Frames searched for vacancies, evenly spread over the run: a search costs 4-10
-# ms a frame (190-370 spheres), and the check is a share over the run, which
-# two dozen frames of a hundred spheres or more (thousands of spheres) tell
-# well enough to part 1 % from 5 %.
-VACANCY_FRAMES = 24
+# Frames searched for vacancies and measured for the spheres' spacing, evenly
+# spread over the run: a search costs 4-10 ms a frame (190-370 spheres), and
+# both checks read a share or a median over the run, which two dozen frames of
+# a hundred spheres or more (thousands of spheres) tell well enough to part
+# 1 % from 5 %.
+SAMPLED_FRAMES = 24
 
 
-def _vacant(good: list[FrameSpheres], exp: Experiment) -> tuple[int, int]:
-    """The vacancies (quality.vacancies) of up to VACANCY_FRAMES frames of the run, and the spheres
-    found where they were looked for."""
-    pick = np.unique(np.linspace(0, len(good) - 1, min(len(good), VACANCY_FRAMES)).round().astype(int))
-    found = [vacancies(good[i].x, good[i].y, exp.window, exp.particle_diameter_px, good[i].beside, good[i].reach)
-             for i in pick]
+def _sampled(good: list[FrameSpheres]) -> list[FrameSpheres]:
+    """Up to SAMPLED_FRAMES of the run's good frames, evenly spread."""
+    pick = np.unique(np.linspace(0, len(good) - 1, min(len(good), SAMPLED_FRAMES)).round().astype(int))
+    return [good[i] for i in pick]
+
+
+def _vacant(sample: list[FrameSpheres], exp: Experiment) -> tuple[int, int]:
+    """The vacancies (quality.vacancies) of the frames ``sample``, and the spheres found where they
+    were looked for."""
+    found = [vacancies(s.x, s.y, exp.window, exp.particle_diameter_px, s.beside, s.reach) for s in sample]
     return sum(len(v) for v, _ in found), sum(n for _, n in found)
 
 

@@ -18,8 +18,9 @@ The checks lean on what every run must show:
 - detections are confident, complete and stable: the spheres match their
   template well, no room for a sphere is left between those found (a packed
   bed has none), their centres have settled on outlines (the outline fit's
-  last step is small), the count of each layer and of each frame stays
-  steady, few frames are bad;
+  last step is small), they lie a diameter apart as touching spheres do
+  (so the diameter given is theirs), the count of each layer and of each
+  frame stays steady, few frames are bad;
 - the heavy share summed over depth is conserved: the run's last frames show
   c0 as the first did, within the counting noise.
 
@@ -53,9 +54,10 @@ from scipy.spatial import cKDTree
 
 from granseg.errors import QualityWarning
 from granseg.measure.classify import AMBIGUOUS, MARGIN, interface_labels
-from granseg.measure.layers import N_LAYERS, height
+from granseg.measure.layers import N_LAYERS, height, nearest_spacing
 
-__all__ = ["Check", "Quality", "QualityWarning", "WallLines", "assess", "depth_mean_check", "vacancies", "views_table",
+__all__ = ["Check", "Quality", "QualityWarning", "WallLines", "assess", "depth_mean_check", "sphere_spacing",
+           "vacancies", "views_table",
            "wall_lines",
            "window_check_of"]
 
@@ -127,6 +129,20 @@ WALL_LINE_SLACK = 0.1
 # one minute of ten by 0.016, ten seconds at worst; the test's phone, slowing to 10 frames/s for
 # the second half, by 0.12 (tests/test_measure_inputs.py).
 FRAME_TIMES_SHARE = 0.01
+# Spheres at a wall touch their neighbours, so the median distance from a
+# sphere found to the nearest other one is about a diameter: with
+# particle_diameter_px right, 0.97-1.00 of it on the 2-D renderer's tuning
+# looks (eight scenes, seeds 7-8) and for the grains at a DEM bed's side wall,
+# 0.96-0.97 on two physically based fixtures and among the real photographs'
+# checked 6 mm centres (benches/bench_spacing.py gives the true centres'
+# figure in each world). The spheres are still found
+# where they are with the diameter given 15 % off, so the figure reads the
+# diameter the input should have said. Given 10 % too large, nine of those
+# sixteen runs miss the count or c_raw target (five with no other check
+# failing), 15 % too large fourteen; 5 % either way, or 10-15 % too small,
+# costs little. 0.08 flags all sixteen at 10 % either way and none at 5 %
+# (BENCHMARKS.md, "A diameter given wrong").
+SPACING_SLACK = 0.08
 
 
 @dataclass(frozen=True)
@@ -208,7 +224,8 @@ ADVICE = {
                        "marked with a red cross)",
     "vacancies": "spheres are missed where the bed has no room for a gap: check the preview (the places "
                  "are circled in red and marked ?); under a lamp's reflection on the wall, move the lamp off the "
-                 "camera's axis so that its reflection falls outside the window",
+                 "camera's axis so that its reflection falls outside the window; a particle_diameter_px given too small "
+                 "leaves room between the spheres too (the figure sphere_spacing_d then lies over 1)",
     "window_lines": "the window's lid and plate lines (y0, y1) are not on the walls: a sphere resting on a wall "
                     "lies half a diameter from it. Move the line by the figure given (px) and check the "
                     "preview's lines; a cell whose bumps leave no flat wall between them (closer than two "
@@ -217,6 +234,9 @@ ADVICE = {
     "heavy_share_conserved": "the depth-mean heavy share drifts from c0: the window does not sample the "
                              "bed fairly, or the classes drift over the run",
     "bad_frames": "frames could not be read or showed no spheres; see the warnings above",
+    "sphere_spacing": "the spheres found do not lie a diameter apart, as spheres touching at a wall do: "
+                      "particle_diameter_px is likely off. Set it near the spacing the check gives (px, in the "
+                      "frames as read, or measure a few spheres across in the preview) and analyse again",
     "frame_times": "the video was not filmed at an even rate (a phone's variable frame rate), but the map's times "
                    "count frames (frame number / fps), so they are off by this share of the run: re-encode it at a "
                    "constant rate (ffmpeg -i IN.mp4 -fps_mode cfr -r 30 OUT.mp4 repeats or drops frames so that "
@@ -252,7 +272,7 @@ def assess(*, n: np.ndarray, n_heavy: np.ndarray, c0: float, first_heights: np.n
            walls: WallLines | None = None, learned_from_end: bool = False,
            light_contrast: float | None = None, light_share: float | None = None,
            frames_reduced: int = 1, frames_every: int = 1, frames_first: int = 0,
-           frame_times: float | None = None) -> Quality:
+           frame_times: float | None = None, spacing: tuple[float, float] | None = None) -> Quality:
     """Run every check on one analysed run.
 
     n, n_heavy: (n_t, n_layers) counts (rows of bad frames all zero);
@@ -302,14 +322,17 @@ def assess(*, n: np.ndarray, n_heavy: np.ndarray, c0: float, first_heights: np.n
     frames_first on (the figure ``frames_first``: > 0 where the camera was
     started before the plate, a negative t0); frame_times: how far a video's frames' own times
     stray from an even rate, as a share of the run's length (``VideoFrames.uneven_times``; None:
-    frames from a directory, or a stream that tells no times: not checked).
+    frames from a directory, or a stream that tells no times: not checked);
+    spacing: the median distance from a sphere found to the nearest other
+    one in its frame, in diameters (:func:`sphere_spacing`), and the
+    diameter given [px in the frames as read] (None: not checked).
     """
     n_t, n_layers = n.shape
     good = n.sum(axis=1) > 0
     first = int(np.argmax(good)) if good.any() else 0
     checks = [*_class_checks(separation, p_heavy),
               *_first_frame_checks(n[first], n_heavy[first], c0, first_heights, first_heavy, n_layers),
-              *_detection_checks(scores, vacant, walls, settle),
+              *_detection_checks(scores, vacant, walls, settle, spacing),
               *_count_checks(n[good], n_heavy[good], c0),
               _check("bad_frames", n_bad_frames / max(n_t, 1), 0.05, "<=", "share of frames without a reading")]
     if frame_times is not None:
@@ -341,6 +364,8 @@ def assess(*, n: np.ndarray, n_heavy: np.ndarray, c0: float, first_heights: np.n
     for name, flags in (placed or {}).items():
         if len(flags):
             figures[name] = float(np.mean(flags))
+    if spacing is not None:
+        figures["sphere_spacing_d"] = float(spacing[0]) if np.isfinite(spacing[0]) else None
     if walls is not None:
         figures["window_lines_d"] = {k: float(v) if np.isfinite(v) else None  # None: too few spheres there
                                      for k, v in (("plate", walls.plate), ("lid", walls.lid))}
@@ -393,8 +418,9 @@ def _first_frame_checks(n0: np.ndarray, n0_heavy: np.ndarray, c0: float, heights
 
 
 def _detection_checks(scores: np.ndarray, vacant: tuple[int, int] | None, walls: WallLines | None,
-                      settle: np.ndarray | None) -> list[Check]:
-    """Whether the spheres were found, all of them, against walls where the window says, and placed."""
+                      settle: np.ndarray | None, spacing: tuple[float, float] | None = None) -> list[Check]:
+    """Whether the spheres were found, all of them, against walls where the window says, and placed, and
+    whether they are of the size given."""
     checks = []
     if len(scores):
         # 0.5: real spheres of every test look match their template at >= 0.8
@@ -410,6 +436,11 @@ def _detection_checks(scores: np.ndarray, vacant: tuple[int, int] | None, walls:
     if settle is not None and len(settle):
         checks.append(_check("centres_settled", float(np.percentile(settle, 90)), SETTLE_PX, "<=",
                              "90th percentile of the outline fit's last step [px]"))
+    if spacing is not None:
+        apart, d = spacing
+        checks.append(_check("sphere_spacing", abs(apart - 1), SPACING_SLACK, "<=",
+                             f"|median distance to the nearest sphere found, {apart:.3f} diameters - 1|: the spheres "
+                             f"lie {apart * d:.1f} px apart, particle_diameter_px is {d:.1f}"))
     return checks
 
 
@@ -520,6 +551,17 @@ def vacancies(x: np.ndarray, y: np.ndarray, window: tuple[float, float, float, f
             chosen[k] = p
             k += 1
     return np.array([free[np.hypot(*(free - p).T) <= 0.5 * d].mean(axis=0) for p in chosen[:k]]).reshape(-1, 2), searched
+
+
+def sphere_spacing(frames: list[tuple[np.ndarray, np.ndarray]], particle_diameter_px: float) -> float:
+    """The median over frames of the median distance from each sphere found to the nearest other one
+    (layers.nearest_spacing), in diameters (SPACING_SLACK). ``frames``: per frame, the centres
+    counted (k, 2) and those found beside the window (j, 2) [px], which are neighbours of the
+    spheres at the window's sides but not asked about themselves. NaN where no frame has two
+    spheres."""
+    per_frame = np.array([nearest_spacing(centres, beside) for centres, beside in frames])
+    per_frame = per_frame[np.isfinite(per_frame)]
+    return float(np.median(per_frame) / particle_diameter_px) if len(per_frame) else float("nan")
 
 
 def _known_beside(x: np.ndarray, y: np.ndarray, beside: np.ndarray, window: tuple[float, float, float, float],
