@@ -39,6 +39,11 @@ found, in diameters of the one given):
     PYTHONPATH=python python benches/bench_measure_accuracy.py --scenes S-POM-25 C-PP-90 --seeds 7 8 \
         --diameter-given 0.9 1 1.1
 
+``--pinhole`` analyses every run with the camera model ``granseg init``
+writes when given none (a pinhole without distortion, centred on the image)
+instead of the lens rendered, as a user who skips ``calibrate-camera`` does;
+the runs' names end in ``-pinhole``.
+
 ``--smeared always`` keeps the classes learned with smeared copies too
 (what analyze did before the blur test), ``never`` those learned from
 sharp spheres only; each run's line says which the test kept and how many
@@ -62,6 +67,7 @@ from granseg._io import save_json
 from granseg.constants import N_LAYERS
 from granseg.errors import QualityWarning
 from granseg.measure import analyze
+from granseg.measure.init import _camera as init_camera
 from granseg.measure.layers import layer_counts
 from granseg.synth import SCENES
 from granseg.synth.scenes import render_scene, scene_names
@@ -94,6 +100,7 @@ def score(r, a) -> dict:
            "window_lines": next((c.value for c in a.quality.checks if c.name == "window_lines"), None),
            "ambiguous_spheres": next((c.value for c in a.quality.checks if c.name == "ambiguous_spheres"), None),
            "sphere_spacing_d": a.quality.figures.get("sphere_spacing_d"),
+           "spacing_across_view": a.quality.figures.get("spacing_across_view"),
            "wall_shifted_count_error": _wall_shifted_count_error(r, a),
            **_blur_figures(a)}
     for name, errs in errors.items():
@@ -166,10 +173,15 @@ def force_light_field(on: bool) -> None:
     classify.LEVEL_LIGHT = on
 
 
-def _give_diameter(path: Path, experiment: dict, factor: float) -> None:
-    """Write ``experiment`` (as rendered) to ``path`` with particle_diameter_px ``factor`` times the true one."""
-    path.write_text(json.dumps({**experiment, "particle_diameter_px": factor * experiment["particle_diameter_px"]}),
-                    encoding="utf-8")
+def _as_given(path: Path, experiment: dict, factor: float, pinhole_for: tuple[int, int] | None = None) -> None:
+    """Write ``experiment`` (as rendered) to ``path`` with particle_diameter_px ``factor`` times the true one
+    and, with ``pinhole_for`` (the frames' width, height), the camera model granseg init writes when given
+    none instead of the lens's."""
+    given = {**experiment, "particle_diameter_px": factor * experiment["particle_diameter_px"]}
+    if pinhole_for is not None:
+        k, dist = init_camera(None, pinhole_for)
+        given.update(camera_matrix=k.tolist(), dist_coeffs=dist.tolist())
+    path.write_text(json.dumps(given), encoding="utf-8")
 
 
 def _or_nan(value: float | None) -> float:
@@ -225,6 +237,8 @@ def main() -> None:
                     help="analyse the frames reduced K times (analyze's reduce; default: its own choice)")
     ap.add_argument("--diameter-given", type=float, nargs="+", default=[1.0], metavar="F",
                     help="analyse each run with particle_diameter_px given F times the true one, once per F")
+    ap.add_argument("--pinhole", action="store_true",
+                    help="analyse each run with granseg init's camera model for none (no lens taken off)")
     ap.add_argument("--json", type=Path, default=None, help="also write the figures here")
     args = ap.parse_args()
     force_smeared(args.smeared)
@@ -233,7 +247,7 @@ def main() -> None:
     scenes = scene_names() if "all" in args.scenes else args.scenes
     results = {}
     for scene, (variant, changes) in itertools.product(scenes, args.variants.items()):
-        base = f"{scene}+{variant}" if variant else scene
+        base = (f"{scene}+{variant}" if variant else scene) + ("-pinhole" if args.pinhole else "")
         names = {f: f"{base}@d{f:g}" if args.diameter_given != [1.0] else base for f in args.diameter_given}
         runs, detected, true = ({name: {} for name in names.values()}, dict.fromkeys(names.values(), 0),
                                 dict.fromkeys(names.values(), 0))
@@ -243,7 +257,8 @@ def main() -> None:
                                  **{**overrides, **changes})
                 analysed = {}
                 for f in args.diameter_given:
-                    _give_diameter(Path(tmp) / "experiment.json", r.experiment, f)
+                    _as_given(Path(tmp) / "experiment.json", r.experiment, f,
+                              r.images[0].shape[1::-1] if args.pinhole else None)
                     with warnings.catch_warnings():
                         warnings.simplefilter("ignore", QualityWarning)  # scored below
                         analysed[f] = analyze(r.source, smooth=1, save=False, progress=False, workers=2,
@@ -264,7 +279,8 @@ def main() -> None:
                       f"{_or_nan(s['light_share_of_class_gap']):.2f}"
                       f"{', taken off' if s['light_over_view'] is not None else ''}) | bias heavy "
                       f"{s['heavy_bias_px']} light {s['light_bias_px']} px, p95 {s['heavy_p95_px']:.2f} "
-                      f"{s['light_p95_px']:.2f} px; spacing {_or_nan(s['sphere_spacing_d']):.3f} d", flush=True)
+                      f"{s['light_p95_px']:.2f} px; spacing {_or_nan(s['sphere_spacing_d']):.3f} d, far over near the axis "
+                      f"{_or_nan(s['spacing_across_view']):.3f}", flush=True)
         for name in names.values():
             pooled = float((np.abs(detected[name] - true[name]) / true[name]).max())
             print(f"{name:28s} pooled over {len(args.seeds)} seeds: worst layer count error {pooled:.3f}")

@@ -50,8 +50,8 @@ from granseg.synth.pbr import load_fixture
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_measure_accuracy import (  # noqa: E402
+    _as_given,
     _blur_figures,
-    _give_diameter,
     _or_nan,
     force_light_field,
     force_smeared,
@@ -100,17 +100,18 @@ def _spy_on_learning(choice: str = "auto") -> list[dict]:
     return seen
 
 
-def measure(folder: Path, look: str, seen: list[dict], diameter_given: float = 1.0) -> dict:
-    """The figures of one look, analysed with particle_diameter_px ``diameter_given`` times its own."""
+def measure(folder: Path, look: str, seen: list[dict], diameter_given: float = 1.0, pinhole: bool = False) -> dict:
+    """The figures of one look, analysed with particle_diameter_px ``diameter_given`` times its own and,
+    with ``pinhole``, granseg init's camera model for none instead of the lens's."""
     truth = load_fixture(folder / look)
     seen.clear()
     with warnings.catch_warnings(), tempfile.TemporaryDirectory() as tmp:
         warnings.simplefilter("ignore")
         source = folder / look
-        if diameter_given != 1.0:  # a copy, the fixture left as it is
+        if diameter_given != 1.0 or pinhole:  # a copy, the fixture left as it is
             source = Path(shutil.copytree(source, Path(tmp) / look))
-            _give_diameter(source / "experiment.json", json.loads((source / "experiment.json").read_text()),
-                           diameter_given)
+            _as_given(source / "experiment.json", json.loads((source / "experiment.json").read_text()),
+                      diameter_given, truth.images[0].shape[1::-1] if pinhole else None)
         a = analyze(source, smooth=1, save=False, progress=False, workers=2)
     d = truth.experiment["particle_diameter_px"]  # the true one, whatever diameter was given
     found = total = wrong = 0
@@ -134,6 +135,7 @@ def measure(folder: Path, look: str, seen: list[dict], diameter_given: float = 1
            "window_lines": float(checks["window_lines"].value) if "window_lines" in checks else None,
            "ambiguous_spheres": float(checks["ambiguous_spheres"].value) if "ambiguous_spheres" in checks else None,
            "sphere_spacing_d": a.quality.figures.get("sphere_spacing_d"),
+           "spacing_across_view": a.quality.figures.get("spacing_across_view"),
            "quality_ok": bool(a.quality.ok), "failed_checks": [c.name for c in a.quality.failed],
            **_blur_figures(a)}
     # the whole frame's polarity comes first, then one per band (learn_templates' order)
@@ -172,6 +174,8 @@ def main() -> None:
                     help="classes from the features as measured, the light over the view left on them")
     ap.add_argument("--diameter-given", type=float, default=1.0, metavar="F",
                     help="analyse each look with particle_diameter_px given F times its own (a copy of the look)")
+    ap.add_argument("--pinhole", action="store_true",
+                    help="analyse each look with granseg init's camera model for none (no lens taken off)")
     ap.add_argument("--json", type=Path, default=None, help="also write the figures here")
     args = ap.parse_args()
     force_smeared(args.smeared)
@@ -181,7 +185,7 @@ def main() -> None:
     seen = _spy_on_learning(args.choice) if args.polarities else []
     results = {}
     for look in looks:
-        r = results[look] = measure(args.dir, look, seen, args.diameter_given)
+        r = results[look] = measure(args.dir, look, seen, args.diameter_given, args.pinhole)
         settled = "-" if r["centres_settled"] is None else f"{r['centres_settled']:.2f}"
         vacant = "-" if r["vacancies"] is None else f"{r['vacancies']:.3f}"
         lines = "-" if r["window_lines"] is None else f"{r['window_lines']:.3f}"
@@ -189,7 +193,7 @@ def main() -> None:
         line = (f"{look:18s} recall {r['recall']:.3f}  c_raw RMSD {r['rmsd']:.3f}  per-frame layer counts "
                 f"{100 * r['frame_layer_count_error']:4.1f} %  wrong class {100 * r['wrong_class']:.1f} %  "
                 f"centres_settled {settled}  vacancies {vacant}  window_lines {lines}  ambiguous {unsure}  "
-                f"spacing {_or_nan(r['sphere_spacing_d']):.3f} d  "
+                f"spacing {_or_nan(r['sphere_spacing_d']):.3f} d, far over near {_or_nan(r['spacing_across_view']):.3f}  "
                 f"{'ok' if r['quality_ok'] else 'flagged: ' + ', '.join(r['failed_checks'])}  smeared classes "
                 f"{'kept' if r['classes_learned_smeared'] else 'not kept'} "
                 f"({r['blur_disagreements_near_plate']}/{r['blur_disagreements']} near the plate), gloss "
@@ -213,6 +217,7 @@ def main() -> None:
     if args.json is not None:
         save_json(args.json, {"command": " ".join(sys.argv), "dir": str(args.dir), "choice": args.choice,
                               "smeared": args.smeared, "diameter_given": args.diameter_given,
+                              "pinhole": args.pinhole,
                               "results": results}, force=True)
 
 

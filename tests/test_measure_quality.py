@@ -34,13 +34,17 @@ from granseg.measure.classify import (
 )
 from granseg.measure.experiment import load_experiment
 from granseg.measure.exposure import DRIFT_LIMIT
+from granseg.measure.init import _camera as init_camera
 from granseg.measure.quality import (
+    LENS_SLACK,
+    LENS_SPHERES,
     SPACING_SLACK,
     VACANCY_GAP,
     WALL_LINE_SLACK,
     Quality,
     WallLines,
     assess,
+    spacing_across_view,
     sphere_spacing,
     vacancies,
     wall_lines,
@@ -316,6 +320,55 @@ def test_a_diameter_given_wrong_is_flagged_with_the_spacing_found(tmp_path):
         wrong, found = spacing_check(given)
         assert not wrong.passed, wrong.line()
         assert found == pytest.approx(apart, abs=0.1 * d), wrong.line()
+
+
+def _through_lens(centres: np.ndarray, axis: np.ndarray, k1: float, f: float = 600.0) -> np.ndarray:
+    """Centres as a lens of radial distortion k1 (focal length f [px]) shows them: r (1 + k1 r^2)."""
+    u = (centres - axis) / f
+    return axis + f * u * (1 + k1 * (u**2).sum(axis=1, keepdims=True))
+
+
+@pytest.mark.parametrize("lattice", ["hexagonal", "square"])
+def test_spheres_far_from_the_lens_axis_lie_closer_where_the_lens_is_not_taken_off(lattice):
+    """Touching spheres read 1 near the axis and far from it; seen through a barrel lens left on, the
+    far third lie closer together (below 1 - LENS_SLACK), through a pincushion lens farther apart."""
+    d, window = 30.0, (100.0, 50.0, 400.0, 500.0)
+    centres = _packed(lattice, d, window)
+    inside = (centres[:, 0] >= window[0]) & (centres[:, 0] < window[2])
+    axis = np.array([260.0, 290.0])  # not the window's middle
+
+    def across(k1):
+        seen = _through_lens(centres, axis, k1)
+        return spacing_across_view([(seen[inside], seen[~inside])] * 2, axis[1])
+
+    assert across(0.0) == pytest.approx(1.0)
+    assert across(-0.3) < 1 - LENS_SLACK
+    assert across(0.3) > 1 + LENS_SLACK
+    assert abs(across(-0.03) - 1) < LENS_SLACK  # a mild lens left on reads as one taken off
+    few = centres[inside][: LENS_SPHERES - 1]
+    assert np.isnan(spacing_across_view([(few, np.zeros((0, 2)))], axis[1]))
+
+
+def test_a_lens_not_taken_off_is_flagged_and_named(tmp_path):
+    """A wide-angle look analysed with its camera model passes the check; with the camera model granseg
+    init writes when given none (a pinhole without distortion), it fails by name."""
+    r = render_frames(stratified_map(4, 0.5), seed=5, out_dir=tmp_path, heavy="ceramic", light="pp",
+                      dist_coeffs=[-0.32, 0.11, 0.0005, -0.0004, -0.015], **SMALL)
+    exp_path = tmp_path / "experiment.json"
+    exp = json.loads(exp_path.read_text())
+
+    def lens_check(experiment):
+        exp_path.write_text(json.dumps(experiment))
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", QualityWarning)
+            a = analyze(tmp_path, smooth=1, save=False, progress=False, workers=2)
+        return next(c for c in a.quality.checks if c.name == "spacing_across_view")
+
+    given = lens_check(exp)
+    assert given.passed, given.line()
+    k, dist = init_camera(None, r.images[0].shape[1::-1])
+    pinhole = lens_check({**exp, "camera_matrix": k.tolist(), "dist_coeffs": dist.tolist()})
+    assert not pinhole.passed, pinhole.line()
 
 
 def test_quality_is_stored_in_the_map_and_refused_downstream(tmp_path):

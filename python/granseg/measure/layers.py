@@ -8,7 +8,7 @@ from scipy.spatial import cKDTree
 from granseg.constants import N_LAYERS
 
 __all__ = ["N_LAYERS", "WALL_CLEARANCE", "across", "clear_of_walls", "height", "in_window", "layer_index", "layer_counts",
-           "nearest_spacing"]
+           "nearest_distances", "nearest_spacing"]
 
 # A free sphere's centre lies at least half a diameter from the lid and the
 # plate (more between the bumps). The hemispheres fixed to both walls, one
@@ -65,13 +65,19 @@ def layer_counts(x: np.ndarray, y: np.ndarray, heavy: np.ndarray,
     return n, nh
 
 
-def nearest_spacing(centres: np.ndarray, beside: np.ndarray | None = None) -> float:
-    """The median distance [px] from each of ``centres`` (k, 2) to the nearest other sphere, among
-    them and ``beside`` (j, 2; neighbours not asked about themselves); NaN where there is none.
-
-    Spheres at a wall touch their neighbours, so in a packed bed this is about a diameter."""
+def nearest_distances(centres: np.ndarray, beside: np.ndarray | None = None) -> np.ndarray:
+    """The distance [px] from each of ``centres`` (k, 2) to the nearest other sphere, among them and
+    ``beside`` (j, 2; neighbours not asked about themselves); NaN where there is none."""
     centres = np.asarray(centres, dtype=float).reshape(-1, 2)
     known = centres if beside is None else np.concatenate([centres, np.asarray(beside, dtype=float).reshape(-1, 2)])
-    if len(centres) == 0 or len(known) < 2:
-        return float("nan")
-    return float(np.median(cKDTree(known).query(centres, k=2)[0][:, 1]))
+    if len(known) < 2:
+        return np.full(len(centres), np.nan)
+    return cKDTree(known).query(centres, k=2)[0][:, 1]
+
+
+def nearest_spacing(centres: np.ndarray, beside: np.ndarray | None = None) -> float:
+    """The median of :func:`nearest_distances` [px]; NaN where there is none.
+
+    Spheres at a wall touch their neighbours, so in a packed bed this is about a diameter."""
+    distances = nearest_distances(centres, beside)
+    return float(np.median(distances)) if len(distances) and np.isfinite(distances).all() else float("nan")

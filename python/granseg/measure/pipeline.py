@@ -49,6 +49,7 @@ from granseg.measure.quality import (
     Quality,
     QualityWarning,
     assess,
+    spacing_across_view,
     sphere_spacing,
     vacancies,
     wall_lines,
@@ -873,6 +874,7 @@ def _assess(result: Analysis, shift: tuple[float, int] = (0.0, 0), reduce: int =
     first = good[0]
     learned = result.classes is not None
     sample = _sampled(good)
+    centres = [(np.column_stack([s.x, s.y]), s.beside) for s in sample]  # the sample's, and their neighbours
     d = result.experiment.particle_diameter_px
     return assess(
         n=result.n, n_heavy=result.n_heavy, c0=result.experiment.c0,
@@ -899,7 +901,8 @@ def _assess(result: Analysis, shift: tuple[float, int] = (0.0, 0), reduce: int =
         frames_every=result.every,
         frames_first=result.first,
         frame_times=frame_times,
-        spacing=(sphere_spacing([(np.column_stack([s.x, s.y]), s.beside) for s in sample], d), d * reduce),
+        spacing=(sphere_spacing(centres, d), d * reduce),
+        across_view=spacing_across_view(centres, float(np.asarray(result.experiment.camera_matrix)[1, 2])),
     )
 
 
