@@ -475,8 +475,8 @@ def _detection_checks(scores: np.ndarray, vacant: tuple[int, int] | None, walls:
                              f"lie {apart * d:.1f} px apart, particle_diameter_px is {d:.1f}"))
     if across_view is not None and np.isfinite(across_view):
         checks.append(_check("spacing_across_view", abs(across_view - 1), LENS_SLACK, "<=",
-                             f"|spacing of the third of the spheres farthest from the lens's axis over the nearest "
-                             f"third's, {across_view:.3f} - 1|"))
+                             f"|spacing of the third of the spheres farthest above or below the lens's axis over the "
+                             f"nearest third's, {across_view:.3f} - 1|"))
     return checks
 
 
