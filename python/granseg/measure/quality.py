@@ -352,9 +352,9 @@ def assess(*, n: np.ndarray, n_heavy: np.ndarray, c0: float, first_heights: np.n
     spacing: the median distance from a sphere found to the nearest other
     one in its frame, in diameters (:func:`sphere_spacing`), and the
     diameter given [px in the frames as read] (None: not checked);
-    across_view: how far apart the spheres far from the lens's axis lie
-    against those near it (:func:`spacing_across_view`; None or NaN: not
-    checked).
+    across_view: how far apart the spheres far above or below the lens's
+    axis lie against those near it (:func:`spacing_across_view`; None or
+    NaN, too few spheres: not checked).
     """
     n_t, n_layers = n.shape
     good = n.sum(axis=1) > 0
@@ -452,7 +452,7 @@ def _detection_checks(scores: np.ndarray, vacant: tuple[int, int] | None, walls:
                       settle: np.ndarray | None, spacing: tuple[float, float] | None = None,
                       across_view: float | None = None) -> list[Check]:
     """Whether the spheres were found, all of them, against walls where the window says, and placed, and
-    whether they are of the size given, near the lens's axis and far from it."""
+    whether they are of the size given, near the lens's axis and far above or below it."""
     checks = []
     if len(scores):
         # 0.5: real spheres of every test look match their template at >= 0.8
