@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import json
+import logging
+import shutil
 
 import cv2
 import numpy as np
@@ -140,7 +142,6 @@ def test_frames_filmed_before_the_plate_started_are_left_out(tmp_path, capsys):
     the map of the run without them, its rows half a frame later; from a frames folder and from a
     video alike, and the velocity tracking's detection skips them too."""
     import csv
-    import shutil
 
     from granseg.measure.pipeline import detect_frames
 
@@ -176,16 +177,17 @@ def test_frames_filmed_before_the_plate_started_are_left_out(tmp_path, capsys):
 
 
 def _timed_video(d, video, seconds):
-    """The frames of folder ``d`` as a lossless (PNG in QuickTime, which records the frame count)
-    ``video``, frame k stamped ``seconds[k]``."""
+    """The frames of folder ``d`` as a lossless ``video``, frame k stamped ``seconds[k]``: PNG in
+    QuickTime (.mov, which records the frame count) or FFV1 in Matroska (.mkv, which keeps none)."""
     import fractions
 
     av = pytest.importorskip("av")
     video.parent.mkdir()
     images = [cv2.imread(str(p)) for p in sorted(d.glob("*.png"))]
     with av.open(str(video), "w") as container:
-        stream = container.add_stream("png", rate=30)
-        stream.width, stream.height, stream.pix_fmt = images[0].shape[1], images[0].shape[0], "rgb24"
+        codec, pix_fmt = ("ffv1", "bgr0") if video.suffix == ".mkv" else ("png", "rgb24")
+        stream = container.add_stream(codec, rate=30)
+        stream.width, stream.height, stream.pix_fmt = images[0].shape[1], images[0].shape[0], pix_fmt
         stream.time_base = fractions.Fraction(1, 1000)
         for img, at in zip(images, seconds, strict=True):
             frame = av.VideoFrame.from_ndarray(img, format="bgr24")
@@ -223,6 +225,33 @@ def test_a_video_filmed_at_an_uneven_rate_is_flagged_by_its_frame_times(tmp_path
                                                                 "fps": 0.5}))
     assert [c.passed for c in analyze(lapse, save=False, progress=False).quality.checks if c.name == "frame_times"] == [True]
     assert "frame_times" not in {c.name for c in analyze(d, save=False, progress=False).quality.checks}
+
+
+def test_a_video_whose_header_only_estimates_its_frames_has_the_frames_it_holds(tmp_path, caplog):
+    """Matroska keeps no frame count: OpenCV announces its length times its nominal rate, 16 frames
+    for the 8 of a phone slowing from 30 to 10 frames/s halfway. The map has the 8 frames read, none
+    of them bad (frame_times still flags the rate); the same file cut short keeps the frames missing
+    as NaN rows, warns that it is truncated and fails bad_frames."""
+    d = tmp_path / "run"
+    render_frames(_map(8), seed=5, out_dir=d, **SMALL)
+    even = analyze(_timed_video(d, tmp_path / "even" / "run.mov", np.arange(8) / 30), save=False, progress=False)
+    uneven_at = np.r_[np.arange(4) / 30, 3 / 30 + np.arange(1, 5) / 10]
+    video = _timed_video(d, tmp_path / "uneven" / "run.mkv", uneven_at)
+    assert cv2.VideoCapture(str(video)).get(cv2.CAP_PROP_FRAME_COUNT) == 16  # the header's estimate
+    with pytest.warns(QualityWarning, match="frame_times") as caught, caplog.at_level(logging.WARNING):
+        whole = analyze(video, save=False, progress=False)
+    assert not any(issubclass(w.category, BadFrameWarning) for w in caught) and "truncated" not in caplog.text
+    assert whole.bad_frames == [] and np.array_equal(whole.n, even.n) and np.array_equal(whole.t, even.t)
+    assert [c.name for c in whole.quality.failed] == ["frame_times"]
+    cut = tmp_path / "cut" / "run.mkv"
+    cut.parent.mkdir()
+    cut.write_bytes(video.read_bytes()[: int(0.6 * video.stat().st_size)])
+    shutil.copy(video.parent / "experiment.json", cut.parent)
+    with (pytest.warns(QualityWarning, match="bad_frames"),
+          pytest.warns(BadFrameWarning, match="frame missing from the stream"), caplog.at_level(logging.WARNING)):
+        short = analyze(cut, save=False, progress=False)
+    assert "truncated" in caplog.text and 0 < len(short.bad_frames) < 16 and len(short.t) == 16
+    assert "bad_frames" in {c.name for c in short.quality.failed}
 
 
 @pytest.mark.parametrize("damage, message", [

@@ -663,7 +663,7 @@ def _detect_all(source, exp, workers, progress, keep, describe=True, reduce=1):
             cv2.setNumThreads(cv_threads)
         bar.close()
     names = list(source.names)
-    _check_video_length(source, names, results)
+    _check_video_length(source, names)
     spheres, bad = [], []
     for i, name in enumerate(names):
         got = results.get(i)
@@ -755,12 +755,20 @@ def _store(i, got, results, crops, bar) -> None:
     bar.update(1)
 
 
-def _check_video_length(source, names, results) -> None:
-    if isinstance(source, VideoFrames) and source.decoded is not None and source.decoded < source.expected:
-        log.warning("%s: stream ends after %d of %d frames (truncated?)",
-                    source.path, source.decoded, source.expected)
-        del names[source.decoded:]
-        names.extend(source.name(i) for i in range(source.decoded, source.expected))
+def _check_video_length(source, names: list[str]) -> None:
+    """``names``, the frames of ``source`` the map has rows for, where a video's stream ended before
+    the frames its header announced: cut short, the frames missing keep their rows (NaN, and the
+    bad_frames check counts them); read to its end in time, the header's count was an estimate (a
+    variable frame rate in a container that keeps no count) and the map has the frames read."""
+    if not (isinstance(source, VideoFrames) and source.decoded is not None and source.decoded < source.expected):
+        return
+    del names[source.decoded:]
+    if source.read_to_its_end():
+        log.info("%s: the stream holds %d frames, not the %d its header's length and rate make (a variable "
+                 "frame rate); the map has the %d", source.path, source.decoded, source.expected, source.decoded)
+        return
+    log.warning("%s: stream ends after %d of %d frames (truncated?)", source.path, source.decoded, source.expected)
+    names.extend(source.name(i) for i in range(source.decoded, source.expected))
 
 
 # --------------------------------------------------------------------------- pass 2: classes

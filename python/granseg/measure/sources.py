@@ -241,6 +241,17 @@ class VideoFrames:
             cap.release()
             self.decoded, self.sought = i, self.mover.seeks - seeks
 
+    def read_to_its_end(self) -> bool:
+        """Whether the last full read's frames reach the end of the stream in time: the last frame
+        kept was filmed within ``every`` + 1 frames (at the header's rate) of the length the header
+        announces (its frame count over its rate). A container that keeps no frame count (Matroska,
+        WebM) announces its duration times its nominal rate, more frames than a variable-rate
+        stream holds; such a stream ends early but whole. A file cut short ends early in time too.
+        False where the stream tells no times or no rate."""
+        if not self.times or not self.fps or self.fps <= 0 or not np.isfinite(self.times[-1]):
+            return False
+        return self.times[-1] >= (self.in_stream - self.every - 1) / self.fps
+
     def uneven_times(self) -> float | None:
         """How far the last full read's frames were filmed off an even rate, as a share of the run's
         length: the largest distance of a frame's own time (``times``) from the straight line
