@@ -284,7 +284,10 @@ class Detected:
     """The spheres of every frame of a recording, without their classes (:func:`detect_frames`).
 
     spheres: per frame, FrameSpheres (centres in undistorted px) or None for a bad frame;
-    names: the frames' names; fps [1/s]; bad_frames: (name, problem) of the frames left out.
+    names: the frames' names; fps [1/s]; bad_frames: (name, problem) of the frames left out;
+    times: a video's own time [s] of each frame (its presentation stamp; None for a frames
+    directory, or where the stream did not give every frame one) and uneven_times how far they
+    stray from an even rate, as a share of the run (VideoFrames.uneven_times).
     """
 
     experiment: Experiment
@@ -292,6 +295,8 @@ class Detected:
     spheres: list[FrameSpheres | None]
     names: list[str]
     bad_frames: list[tuple[str, str]]
+    times: np.ndarray | None = None
+    uneven_times: float | None = None
 
 
 def detect_frames(path: str | os.PathLike, *, workers: int | None = None, progress: bool = True) -> Detected:
@@ -306,7 +311,11 @@ def detect_frames(path: str | os.PathLike, *, workers: int | None = None, progre
     source.keep(first=first)
     reduce = analysis_reduction(exp.particle_diameter_px)
     spheres, _, bad, names, _ = _detect_all(source, exp, workers, progress, set(), describe=False, reduce=reduce)
-    return Detected(exp, fps, [_sphere_pixels(s, reduce) for s in spheres], names, bad)
+    times = uneven = None
+    if isinstance(source, VideoFrames):
+        uneven = source.uneven_times()
+        times = np.asarray(source.times, dtype=float) if len(source.times) == len(spheres) else None
+    return Detected(exp, fps, [_sphere_pixels(s, reduce) for s in spheres], names, bad, times, uneven)
 
 
 # The detector's lengths in pixels (the rim search's 1.5 px, the smoothing, the

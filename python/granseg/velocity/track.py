@@ -23,6 +23,10 @@ What the paper did by hand in ImageJ, per recording:
    speeds near the window's sides come out low by up to 1 - cos(s / R) (4 % at the
    side of a 9-diameter window on the paper's 0.19 m cell).
 
+Frame k was filmed at k / fps, unless a video's own time stamps stray from an even rate (a
+camera slowing down in dim light, as phones do): then the stamps are the frames' times, for the
+guess, the co-moving frame and the durations alike (:func:`_clock`).
+
 Errors: the recording is cut into :data:`BLOCKS` consecutive time blocks; a layer's
 standard error is the spread of its block velocities over sqrt(blocks), which holds
 when the bed's speed and the positions' noise are correlated within a block but not
@@ -54,6 +58,7 @@ from granseg.errors import short_repr
 from granseg.measure.experiment import load_experiment
 from granseg.measure.layers import height
 from granseg.measure.pipeline import Detected, detect_frames
+from granseg.measure.quality import FRAME_TIMES_SHARE
 from granseg.measure.sources import open_frames
 from granseg.model import _finite, defaults
 from granseg.velocity.profile import VelocityProfile
@@ -126,11 +131,12 @@ def _frames_table(det: Detected) -> np.ndarray:
     return np.concatenate(rows) if rows else np.zeros((0, 3))
 
 
-def _guess_steps(table: np.ndarray, layer: np.ndarray, n_layers: int, d: float, max_pairs: int = 400
-                 ) -> np.ndarray:
-    """Each layer's displacement per frame [px]: the peak of the offsets' histogram between
-    consecutive frames (spheres of the same layer, within MAX_STEP diameters across and a
-    quarter diameter up or down). NaN where no frame pair shows a clear peak."""
+def _guess_steps(table: np.ndarray, layer: np.ndarray, n_layers: int, d: float, clock: np.ndarray,
+                 max_pairs: int = 400) -> np.ndarray:
+    """Each layer's displacement per frame [px]: the peak of the histogram of the offsets between
+    consecutive frames over their interval (``clock``: each frame's time in frames, :func:`_clock`),
+    of spheres of the same layer, within MAX_STEP diameters per frame across and a quarter diameter
+    up or down. NaN where no frame pair shows a clear peak."""
     frames = np.unique(table[:, 0]).astype(int)
     pairs = [f for f in frames if f + 1 in set(frames)]
     pairs = pairs[:: max(1, len(pairs) // max_pairs)]
@@ -139,7 +145,7 @@ def _guess_steps(table: np.ndarray, layer: np.ndarray, n_layers: int, d: float, 
     by_frame = {f: np.flatnonzero(table[:, 0] == f) for f in frames}
     for f in pairs:
         a, b = by_frame[f], by_frame[f + 1]
-        dx = table[b, 1][None, :] - table[a, 1][:, None]
+        dx = (table[b, 1][None, :] - table[a, 1][:, None]) / (clock[f + 1] - clock[f])
         dy = table[b, 2][None, :] - table[a, 2][:, None]
         near = (np.abs(dy) < 0.25 * d) & (np.abs(dx) <= MAX_STEP * d)
         ia, _ = np.nonzero(near)
@@ -166,15 +172,18 @@ def _guess_steps(table: np.ndarray, layer: np.ndarray, n_layers: int, d: float, 
     return steps
 
 
-def _link(table: np.ndarray, steps_px: np.ndarray, n_layers: int, window, d: float) -> np.ndarray:
-    """Track ids of the rows of ``table`` (-1: not linked), by trackpy in the co-moving frame."""
+def _link(table: np.ndarray, steps_px: np.ndarray, n_layers: int, window, d: float, clock: np.ndarray
+          ) -> np.ndarray:
+    """Track ids of the rows of ``table`` (-1: not linked), by trackpy in the co-moving frame
+    (``clock``: each frame's time in frames, :func:`_clock`)."""
     import pandas as pd
     import trackpy
 
     trackpy.quiet()
     zc = np.arange(n_layers) + 0.5
     u = np.interp(height(table[:, 2], window, n_layers), zc, steps_px)
-    df = pd.DataFrame({"x": table[:, 1] - u * table[:, 0], "y": table[:, 2], "frame": table[:, 0].astype(int)})
+    frame = table[:, 0].astype(int)
+    df = pd.DataFrame({"x": table[:, 1] - u * clock[frame], "y": table[:, 2], "frame": frame})
     with warnings.catch_warnings():
         # trackpy 0.7 uses pandas' deprecated ``inplace=`` (a warning per call under pandas 3)
         warnings.simplefilter("ignore", DeprecationWarning)
@@ -193,7 +202,8 @@ def _unroll(x_px: np.ndarray, window, scale: float, radius: float) -> np.ndarray
 
 def _segments(tracks: np.ndarray, key: np.ndarray, D: float, n_layers: int) -> tuple[np.ndarray, ...]:
     """Per segment (the rows sharing ``key``, in frame order; one-point segments dropped):
-    layer of its mean height, displacement [m], duration [frames], summed heights [m],
+    layer of its mean height, displacement [m], duration (in the units of the first column:
+    frames), summed heights [m],
     points, and the row of ``tracks`` it starts at."""
     order = np.lexsort((tracks[:, 0], key))
     frame, s, z, key = tracks[order, 0], tracks[order, 2], tracks[order, 3], key[order]
@@ -207,18 +217,21 @@ def _segments(tracks: np.ndarray, key: np.ndarray, D: float, n_layers: int) -> t
     return layer, s[ends] - s[starts], frame[ends] - frame[starts], zsum, points, order[starts]
 
 
-def _layer_speeds(tracks: np.ndarray, fps: float, n_frames: int, n_layers: int, D: float
+def _layer_speeds(tracks: np.ndarray, clock: np.ndarray, fps: float, n_layers: int, D: float
                   ) -> tuple[np.ndarray, ...]:
-    """Per layer: speed [m/s], its error, mean height [m] and tracked grain-frames.
+    """Per layer: speed [m/s], its error, mean height [m] and tracked grain-frames (``clock``: each
+    frame's time in frames at ``fps``, :func:`_clock`).
 
     The error is the larger of two: the spread of the speeds of BLOCKS consecutive time
     blocks (the bed's unsteadiness and the positions' noise), and the spread over the
     tracks, each a cluster of its own (a creeping layer shows the same few grains all
     recording long, and each has its own mean speed: the wall samples the band)."""
-    frame, tid = tracks[:, 0], tracks[:, 1]
-    block = np.minimum((frame * BLOCKS / max(n_frames, 1)).astype(int), BLOCKS - 1)
+    frame, tid = tracks[:, 0].astype(int), tracks[:, 1]
+    timed = tracks.copy()  # the segments' durations in frames of the clock
+    timed[:, 0] = clock[frame]
+    block = np.minimum((timed[:, 0] * BLOCKS / (clock[-1] + 1)).astype(int), BLOCKS - 1)
     # one segment per (track, block): its displacement telescopes to last - first
-    layer, disp, dur, zsum, points, first = _segments(tracks, tid * BLOCKS + block, D, n_layers)
+    layer, disp, dur, zsum, points, first = _segments(timed, tid * BLOCKS + block, D, n_layers)
     seg_block = block[first]
     D_b = np.zeros((BLOCKS, n_layers))
     T_b = np.zeros((BLOCKS, n_layers))
@@ -234,7 +247,7 @@ def _layer_speeds(tracks: np.ndarray, fps: float, n_frames: int, n_layers: int, 
         vb = v_blocks[:, j][np.isfinite(v_blocks[:, j])]
         if vb.size >= MIN_BLOCKS:
             err_block[j] = np.std(vb, ddof=1) / np.sqrt(vb.size)
-    t_layer, t_disp, t_dur, *_ = _segments(tracks, tid, D, n_layers)
+    t_layer, t_disp, t_dur, *_ = _segments(timed, tid, D, n_layers)
     err_track = np.full(n_layers, np.nan)
     for j in range(n_layers):
         sel = (t_layer == j) & (t_dur > 0)
@@ -243,6 +256,22 @@ def _layer_speeds(tracks: np.ndarray, fps: float, n_frames: int, n_layers: int, 
             resid = t_disp[sel] - v[j] * t_dur[sel] / fps
             err_track[j] = np.sqrt(g / (g - 1) * np.sum(resid**2)) / (t_dur[sel].sum() / fps)
     return v, np.fmax(err_block, err_track), z_mean, count
+
+
+def _clock(det: Detected) -> tuple[np.ndarray, str | None]:
+    """Each frame's time in frames at ``det.fps``: its place in the recording, or, where a video's
+    own time stamps stray from an even rate by more than quality.FRAME_TIMES_SHARE of the run (a
+    phone slowing its rate in dim light), the stamps (times fps), and a note that says so. Stamps
+    of an even rate are not read: a time-lapse plays its frames faster than it filmed them."""
+    index = np.arange(len(det.spheres), dtype=float)
+    if det.times is None or det.uneven_times is None or det.uneven_times <= FRAME_TIMES_SHARE:
+        return index, None
+    if not np.all(np.diff(det.times) > 0):
+        return index, (f"frames filmed at an uneven rate, and their time stamps do not increase: "
+                       f"speeds taken at {det.fps:g} fps may be off")
+    return (det.times - det.times[0]) * det.fps, (
+        f"frames filmed at an uneven rate (their time stamps stray from an even one by "
+        f"{det.uneven_times:.0%} of the run): speeds from the stamps")
 
 
 def track_recording(path: str | os.PathLike, *, D_p: float = D_P, prior: np.ndarray | None = None,
@@ -261,20 +290,23 @@ def track_recording(path: str | os.PathLike, *, D_p: float = D_P, prior: np.ndar
     radius = _wall_radius(_raw_experiment(det))
     table = _frames_table(det)
     layer = np.clip(np.floor(height(table[:, 2], window, n_layers)).astype(int), 0, n_layers - 1)
-    steps = _guess_steps(table, layer, n_layers, d)
+    clock, uneven = _clock(det)
+    notes = [] if uneven is None else [f"{Path(path).name}: {uneven}"]
+    steps = _guess_steps(table, layer, n_layers, d, clock)
     if prior is not None:
         known = np.isfinite(prior)
         steps = np.where(known, np.asarray(prior) / det.fps / scale, steps)
-    notes: list[str] = []
     if not np.isfinite(steps).any():
         raise ValueError(f"{exp.path.parent}: no layer shows a consistent displacement between frames "
                          f"(faster than {MAX_STEP} diameters per frame, or too few spheres found)")
-    ids = _link(table, np.nan_to_num(steps), n_layers, window, d)
+    ids = _link(table, np.nan_to_num(steps), n_layers, window, d, clock)
     z = height(table[:, 2], window, n_layers) * D_p
     tracks = np.column_stack([table[:, 0], ids, _unroll(table[:, 1], window, scale, radius), z,
                               table[:, 1], table[:, 2]])
-    v, v_err, z_mean, count = _layer_speeds(tracks, det.fps, len(det.spheres), n_layers, D_p)
-    fast = (np.abs(steps) / d > MAX_STEP * 0.9) | (np.abs(v) / det.fps / scale / d > MAX_STEP * 0.9)
+    v, v_err, z_mean, count = _layer_speeds(tracks, clock, det.fps, n_layers, D_p)
+    longest = float(np.max(np.diff(clock), initial=1.0))  # the longest interval between frames [frames]
+    fast = ((np.abs(steps) * longest / d > MAX_STEP * 0.9)
+            | (np.abs(v) * longest / det.fps / scale / d > MAX_STEP * 0.9))
     if fast.any():
         notes.append(f"{Path(path).name}: layers {', '.join(str(j + 1) for j in np.flatnonzero(fast))} move "
                      f"about {MAX_STEP} diameters per frame or more at {det.fps:g} fps: left out")
