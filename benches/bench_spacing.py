@@ -5,7 +5,11 @@ reads the median distance from each sphere found to the nearest other one, in
 diameters of the ``particle_diameter_px`` given: spheres at a wall touch their
 neighbours, so with the diameter right it lies near 1. This script gives the
 same figure (``layers.nearest_spacing``, median per frame, then over frames)
-for the true centres, no detector involved:
+for the true centres, no detector involved, and for the 2-D scenes and the
+fixtures the figure of the check ``spacing_across_view`` (``LENS_SLACK``):
+how far apart the third of the true centres farthest above or below the
+lens's axis lie against the nearest third, which a lens taken off leaves at
+the packing's own value:
 
 - the 2-D renderer's scenes (``--scenes``, ``--seeds``): the spheres in the
   window, their neighbours within a diameter of it counted as neighbours;
@@ -32,6 +36,8 @@ from pathlib import Path
 import numpy as np
 
 from granseg.measure.layers import nearest_spacing
+from granseg.measure.quality import spacing_across_view
+from granseg.synth import scene_names
 from granseg.synth.pbr import load_fixture
 from granseg.synth.scenes import render_scene
 
@@ -44,20 +50,30 @@ def _of_frames(particles: list[np.ndarray], d: float) -> float:
     return float(np.median([nearest_spacing(p[p[:, 4] > 0, :2], p[p[:, 4] == 0, :2]) for p in particles]) / d)
 
 
+def _across_view(particles: list[np.ndarray], experiment: dict) -> float:
+    """The spacing of the truth frames' far third over their near third, by height from the
+    principal point (quality.spacing_across_view)."""
+    frames = [(p[p[:, 4] > 0, :2], p[p[:, 4] == 0, :2]) for p in particles]
+    return spacing_across_view(frames, float(np.asarray(experiment["camera_matrix"])[1, 2]))
+
+
 def renderer(scenes: list[str], seeds: list[int], frames: int) -> None:
     for scene in scenes:
-        values = []
+        values, across = [], []
         for seed in seeds:
             with tempfile.TemporaryDirectory() as tmp:
                 r = render_scene(scene, frames, seed=seed, out_dir=Path(tmp))
             values.append(_of_frames(r.particles, r.experiment["particle_diameter_px"]))
-        print(f"2-D renderer {scene:34s} seeds {seeds}: " + " ".join(f"{v:.3f}" for v in values))
+            across.append(_across_view(r.particles, r.experiment))
+        print(f"2-D renderer {scene:34s} seeds {seeds}: " + " ".join(f"{v:.3f}" for v in values)
+              + "; far over near the axis " + " ".join(f"{v:.3f}" for v in across))
 
 
 def fixtures() -> None:
     for look in sorted(p.name for p in (FIXTURES / "pbr").iterdir() if (p / "truth.npz").is_file()):
         truth = load_fixture(FIXTURES / "pbr" / look)
-        print(f"physically based fixture {look:22s} {_of_frames(truth.particles, truth.experiment['particle_diameter_px']):.3f}")
+        print(f"physically based fixture {look:22s} {_of_frames(truth.particles, truth.experiment['particle_diameter_px']):.3f}"
+              f"; far over near the axis {_across_view(truth.particles, truth.experiment):.3f}")
 
 
 def real_beads(d: float = 29.2) -> None:
@@ -90,12 +106,13 @@ def dem(run: Path) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--scenes", nargs="+", default=["S-POM-25", "POM-PP-50", "apparatus-C-PP-50-h264"])
+    p.add_argument("--scenes", nargs="+", default=["S-POM-25", "POM-PP-50", "apparatus-C-PP-50-h264"],
+                   help="2-D scenes, or 'all'")
     p.add_argument("--seeds", type=int, nargs="+", default=[7, 8])
     p.add_argument("--frames", type=int, default=6)
     p.add_argument("--dem", type=Path, help="a LAMMPS run folder (grains.dump, dem.json)")
     a = p.parse_args(argv)
-    renderer(a.scenes, a.seeds, a.frames)
+    renderer(scene_names() if "all" in a.scenes else a.scenes, a.seeds, a.frames)
     fixtures()
     real_beads()
     if a.dem is not None:

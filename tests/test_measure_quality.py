@@ -14,7 +14,7 @@ import pytest
 from granseg.cli import main
 from granseg.errors import FlaggedMapError, QualityWarning
 from granseg.maps import check_accepted, load_map
-from granseg.measure import analyze, pipeline
+from granseg.measure import analyze, pipeline, quality
 from granseg.measure.classify import (
     BLUR_ZONE,
     FEATURES,
@@ -36,6 +36,7 @@ from granseg.measure.experiment import load_experiment
 from granseg.measure.exposure import DRIFT_LIMIT
 from granseg.measure.init import _camera as init_camera
 from granseg.measure.quality import (
+    LENS_HINT,
     LENS_SLACK,
     LENS_SPHERES,
     SPACING_SLACK,
@@ -369,6 +370,46 @@ def test_a_lens_not_taken_off_is_flagged_and_named(tmp_path):
     k, dist = init_camera(None, r.images[0].shape[1::-1])
     pinhole = lens_check({**exp, "camera_matrix": k.tolist(), "dist_coeffs": dist.tolist()})
     assert not pinhole.passed, pinhole.line()
+
+
+def test_window_lines_names_a_lens_left_on_where_the_camera_model_takes_none_off():
+    """window_lines adds the lens to its line only where the camera model takes no distortion off and
+    the spheres far from the axis lie more than LENS_HINT closer (or farther apart) than near it."""
+    walls = WallLines(plate=0.0, lid=0.2, layer_px=30.0)
+
+    def line(across_view):
+        (check,) = [c for c in quality._detection_checks(np.ones(9), None, walls, None, None, across_view)
+                    if c.name == "window_lines"]
+        assert not check.passed
+        return check.about
+
+    assert "calibrate-camera" in line((1 - 2 * LENS_HINT, False)) and "closer together" in line((0.97, False))
+    assert "farther apart" in line((1 + 2 * LENS_HINT, False))
+    for told in ((1 - 2 * LENS_HINT, True), (1 - 0.5 * LENS_HINT, False), (float("nan"), False), None):
+        assert "calibrate-camera" not in line(told), told
+
+
+def test_a_mild_lens_left_on_is_named_by_window_lines_before_a_line_is_moved(tmp_path):
+    """Under the 2-D renderer's mild default lens, granseg init's pinhole passes spacing_across_view but
+    fails window_lines; its line names the lens (moving the line instead gives a map that passes
+    every check and misses: benches/bench_window_advice.py). With the lens's camera model, no hint."""
+    r = render_scene("S-PP-75", 6, seed=9, out_dir=tmp_path)
+    exp_path = tmp_path / "experiment.json"
+    exp = json.loads(exp_path.read_text())
+
+    def checks(experiment):
+        exp_path.write_text(json.dumps(experiment))
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", QualityWarning)
+            a = analyze(tmp_path, smooth=1, save=False, progress=False, workers=2)
+        return {c.name: c for c in a.quality.checks}
+
+    k, dist = init_camera(None, r.images[0].shape[1::-1])
+    pinhole = checks({**exp, "camera_matrix": k.tolist(), "dist_coeffs": dist.tolist()})
+    assert pinhole["spacing_across_view"].passed and not pinhole["window_lines"].passed
+    assert "calibrate-camera" in pinhole["window_lines"].about, pinhole["window_lines"].line()
+    given = checks(exp)
+    assert "calibrate-camera" not in given["window_lines"].about
 
 
 def test_quality_is_stored_in_the_map_and_refused_downstream(tmp_path):

@@ -919,7 +919,8 @@ def _assess(result: Analysis, shift: tuple[float, int] = (0.0, 0), reduce: int =
         frames_first=result.first,
         frame_times=frame_times,
         spacing=(sphere_spacing(centres, d), d * reduce),
-        across_view=spacing_across_view(centres, float(np.asarray(result.experiment.camera_matrix)[1, 2])),
+        across_view=(spacing_across_view(centres, float(np.asarray(result.experiment.camera_matrix)[1, 2])),
+                     bool(np.any(result.experiment.dist_coeffs != 0))),
     )
 
 
