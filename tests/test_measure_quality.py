@@ -350,25 +350,29 @@ def test_spheres_far_from_the_lens_axis_lie_closer_where_the_lens_is_not_taken_o
     assert np.isnan(spacing_across_view([(few, np.zeros((0, 2)))], axis[1]))
 
 
+def _checks_as_given(r, pinhole: bool = False) -> dict:
+    """The quality checks, by name, of the rendered run ``r`` analysed with its own camera model or,
+    with ``pinhole``, the one granseg init writes when given none (a pinhole without distortion)."""
+    exp_path = r.source / "experiment.json"
+    exp = dict(r.experiment)
+    if pinhole:
+        k, dist = init_camera(None, r.images[0].shape[1::-1])
+        exp.update(camera_matrix=k.tolist(), dist_coeffs=dist.tolist())
+    exp_path.write_text(json.dumps(exp))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", QualityWarning)
+        a = analyze(r.source, smooth=1, save=False, progress=False, workers=2)
+    return {c.name: c for c in a.quality.checks}
+
+
 def test_a_lens_not_taken_off_is_flagged_and_named(tmp_path):
     """A wide-angle look analysed with its camera model passes the check; with the camera model granseg
     init writes when given none (a pinhole without distortion), it fails by name."""
     r = render_frames(stratified_map(4, 0.5), seed=5, out_dir=tmp_path, heavy="ceramic", light="pp",
                       dist_coeffs=[-0.32, 0.11, 0.0005, -0.0004, -0.015], **SMALL)
-    exp_path = tmp_path / "experiment.json"
-    exp = json.loads(exp_path.read_text())
-
-    def lens_check(experiment):
-        exp_path.write_text(json.dumps(experiment))
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", QualityWarning)
-            a = analyze(tmp_path, smooth=1, save=False, progress=False, workers=2)
-        return next(c for c in a.quality.checks if c.name == "spacing_across_view")
-
-    given = lens_check(exp)
+    given = _checks_as_given(r)["spacing_across_view"]
     assert given.passed, given.line()
-    k, dist = init_camera(None, r.images[0].shape[1::-1])
-    pinhole = lens_check({**exp, "camera_matrix": k.tolist(), "dist_coeffs": dist.tolist()})
+    pinhole = _checks_as_given(r, pinhole=True)["spacing_across_view"]
     assert not pinhole.passed, pinhole.line()
 
 
@@ -394,22 +398,10 @@ def test_a_mild_lens_left_on_is_named_by_window_lines_before_a_line_is_moved(tmp
     fails window_lines; its line names the lens (moving the line instead gives a map that passes
     every check and misses: benches/bench_window_advice.py). With the lens's camera model, no hint."""
     r = render_scene("S-PP-75", 6, seed=9, out_dir=tmp_path)
-    exp_path = tmp_path / "experiment.json"
-    exp = json.loads(exp_path.read_text())
-
-    def checks(experiment):
-        exp_path.write_text(json.dumps(experiment))
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", QualityWarning)
-            a = analyze(tmp_path, smooth=1, save=False, progress=False, workers=2)
-        return {c.name: c for c in a.quality.checks}
-
-    k, dist = init_camera(None, r.images[0].shape[1::-1])
-    pinhole = checks({**exp, "camera_matrix": k.tolist(), "dist_coeffs": dist.tolist()})
+    pinhole = _checks_as_given(r, pinhole=True)
     assert pinhole["spacing_across_view"].passed and not pinhole["window_lines"].passed
     assert "calibrate-camera" in pinhole["window_lines"].about, pinhole["window_lines"].line()
-    given = checks(exp)
-    assert "calibrate-camera" not in given["window_lines"].about
+    assert "calibrate-camera" not in _checks_as_given(r)["window_lines"].about
 
 
 def test_quality_is_stored_in_the_map_and_refused_downstream(tmp_path):
