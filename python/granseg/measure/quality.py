@@ -636,17 +636,17 @@ def spacing_across_view(frames: list[tuple[np.ndarray, np.ndarray]], axis_y: flo
     towards the window's sides narrower whatever the lens (by up to 4 % at the paper's 95 mm
     radius); rows at every height hold spheres of every x, so that cancels, while a lens left on
     shrinks the rows far above and below its axis."""
-    radii, nearest = [], []
+    offsets, nearest = [], []  # per sphere: how far above or below the axis [px], its nearest neighbour [px]
     for centres, beside in frames:
         centres = np.asarray(centres, dtype=float).reshape(-1, 2)
-        radii.append(np.abs(centres[:, 1] - axis_y))
+        offsets.append(np.abs(centres[:, 1] - axis_y))
         nearest.append(nearest_distances(centres, beside))
-    r, nn = (np.concatenate(radii), np.concatenate(nearest)) if frames else (np.zeros(0), np.zeros(0))
-    r, nn = r[np.isfinite(nn)], nn[np.isfinite(nn)]
-    if len(r) < LENS_SPHERES:
+    off, nn = (np.concatenate(offsets), np.concatenate(nearest)) if frames else (np.zeros(0), np.zeros(0))
+    off, nn = off[np.isfinite(nn)], nn[np.isfinite(nn)]
+    if len(off) < LENS_SPHERES:
         return float("nan")
-    near, far = np.quantile(r, [1 / 3, 2 / 3])
-    return float(np.median(nn[r >= far]) / np.median(nn[r <= near]))
+    near, far = np.quantile(off, [1 / 3, 2 / 3])
+    return float(np.median(nn[off >= far]) / np.median(nn[off <= near]))
 
 
 def _known_beside(x: np.ndarray, y: np.ndarray, beside: np.ndarray, window: tuple[float, float, float, float],
