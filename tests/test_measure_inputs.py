@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import logging
 import shutil
+import warnings
 
 import cv2
 import numpy as np
@@ -176,16 +177,19 @@ def test_frames_filmed_before_the_plate_started_are_left_out(tmp_path, capsys):
             analyze(early, save=False, progress=False)
 
 
-def _timed_video(d, video, seconds):
-    """The frames of folder ``d`` as a lossless ``video``, frame k stamped ``seconds[k]``: PNG in
-    QuickTime (.mov, which records the frame count) or FFV1 in Matroska (.mkv, which keeps none)."""
+def _timed_video(d, video, seconds, fps=None):
+    """The frames of folder ``d`` as a lossless ``video`` played at 30 frames/s, frame k stamped
+    ``seconds[k]``: PNG in QuickTime (.mov, which records the frame count) or FFV1 in Matroska
+    (.mkv, which keeps none). Its experiment.json is the folder's with ``fps`` (None: the
+    stream's rate, as filmed in real time)."""
     import fractions
 
     av = pytest.importorskip("av")
     video.parent.mkdir()
     images = [cv2.imread(str(p)) for p in sorted(d.glob("*.png"))]
-    with av.open(str(video), "w") as container:
-        codec, pix_fmt = ("ffv1", "bgr0") if video.suffix == ".mkv" else ("png", "rgb24")
+    mkv = video.suffix == ".mkv"
+    with av.open(str(video), "w", options={} if mkv else {"movflags": "faststart"}) as container:  # its index first
+        codec, pix_fmt = ("ffv1", "bgr0") if mkv else ("png", "rgb24")
         stream = container.add_stream(codec, rate=30)
         stream.width, stream.height, stream.pix_fmt = images[0].shape[1], images[0].shape[0], pix_fmt
         stream.time_base = fractions.Fraction(1, 1000)
@@ -196,15 +200,17 @@ def _timed_video(d, video, seconds):
                 container.mux(packet)
         for packet in stream.encode():
             container.mux(packet)
-    (video.parent / "experiment.json").write_text((d / "experiment.json").read_text())
+    (video.parent / "experiment.json").write_text(json.dumps({**json.loads((d / "experiment.json").read_text()),
+                                                             "fps": fps}))
     return video
 
 
-def test_a_video_filmed_at_an_uneven_rate_is_flagged_by_its_frame_times(tmp_path):
-    """The map's times count frames (k / fps). A video whose own time stamps stray from an even rate
-    (a phone slowing from 30 to 10 frames/s halfway) fails the frame_times check, naming it; the same
-    frames stamped evenly pass it, and so does a time-lapse (frames filmed 2 s apart, played at 30
-    frames/s: even, only faster). A frames folder tells no times and is not checked."""
+def test_a_video_filmed_at_an_uneven_rate_has_the_times_of_its_stamps(tmp_path, caplog):
+    """A video whose own time stamps stray from an even rate (a phone slowing from 30 to 10 frames/s
+    halfway) gives a map whose times are the stamps, and passes frame_times; the same frames stamped
+    evenly give k / fps. The same uneven video given fps = 0.5 (played 60 times faster than filmed:
+    its stamps count playback) cannot be timed by them: frame_times fails and names it. An even
+    time-lapse passes; a frames folder tells no times and is not checked."""
     from granseg.measure import quality
 
     d = tmp_path / "run"
@@ -212,37 +218,77 @@ def test_a_video_filmed_at_an_uneven_rate_is_flagged_by_its_frame_times(tmp_path
     even = analyze(_timed_video(d, tmp_path / "even" / "run.mov", np.arange(8) / 30), save=False, progress=False)
     (check,) = [c for c in even.quality.checks if c.name == "frame_times"]
     assert check.passed and check.value < 0.2 * quality.FRAME_TIMES_SHARE  # stamps rounded to the ms
+    assert even.quality.figures["frame_times_from_stamps"] is False
+    np.testing.assert_allclose(np.diff(even.t), 1 / 30, rtol=1e-3)  # the stream's rate, from stamps in ms
     uneven_at = np.r_[np.arange(4) / 30, 3 / 30 + np.arange(1, 5) / 10]
-    with pytest.warns(QualityWarning, match="frame_times"):
+    with caplog.at_level(logging.INFO):
         uneven = analyze(_timed_video(d, tmp_path / "uneven" / "run.mov", uneven_at), save=False, progress=False)
+    assert "times from the stamps" in caplog.text
     (check,) = [c for c in uneven.quality.checks if c.name == "frame_times"]
-    assert not check.passed and check.value > 3 * quality.FRAME_TIMES_SHARE
-    assert np.array_equal(uneven.n, even.n) and np.array_equal(uneven.t, even.t)  # the same frames, the same times
-    assert "frame_times" in quality.ADVICE and "-fps_mode cfr" in quality.ADVICE["frame_times"]
+    assert check.passed and check.value == 0.0 and uneven.quality.ok
+    assert uneven.quality.figures["frame_times_uneven"] > 3 * quality.FRAME_TIMES_SHARE
+    assert uneven.quality.figures["frame_times_from_stamps"] is True
+    assert np.array_equal(uneven.n, even.n) and uneven.t[0] == even.t[0]  # the same frames from the same start
+    np.testing.assert_allclose(uneven.t - uneven.t[0], uneven_at, atol=1e-3)  # the stamps, to the ms
     lapse = tmp_path / "lapse" / "run.mov"
-    _timed_video(d, lapse, np.arange(8) / 30)
-    (lapse.parent / "experiment.json").write_text(json.dumps({**json.loads((d / "experiment.json").read_text()),
-                                                                "fps": 0.5}))
-    assert [c.passed for c in analyze(lapse, save=False, progress=False).quality.checks if c.name == "frame_times"] == [True]
+    _timed_video(d, lapse, uneven_at, fps=0.5)
+    caplog.clear()
+    with pytest.warns(QualityWarning, match="frame_times"), caplog.at_level(logging.WARNING):
+        played = analyze(lapse, save=False, progress=False)
+    assert "stamps count playback" in caplog.text
+    (check,) = [c for c in played.quality.checks if c.name == "frame_times"]
+    assert not check.passed and check.value > 3 * quality.FRAME_TIMES_SHARE
+    np.testing.assert_allclose(np.diff(played.t), 2.0)  # frames counted at the 0.5 fps given
+    assert "frame_times" in quality.ADVICE and "-fps_mode cfr" in quality.ADVICE["frame_times"]
+    _timed_video(d, tmp_path / "even-lapse" / "run.mov", np.arange(8) / 30, fps=0.5)
+    assert [c.passed for c in analyze(tmp_path / "even-lapse" / "run.mov", save=False,
+                                      progress=False).quality.checks if c.name == "frame_times"] == [True]
     assert "frame_times" not in {c.name for c in analyze(d, save=False, progress=False).quality.checks}
+
+
+def test_stamps_are_read_as_times_only_where_they_can_be(tmp_path):
+    """frame_times reads a video's uneven stamps as filming times, but not stamps that do not
+    increase, nor those of a video that plays far faster or slower than the fps given (a
+    high-speed camera's video played at 30 frames/s counts playback); even stamps are not read."""
+    from granseg.measure.pipeline import FrameTimes, frame_times
+    from granseg.measure.sources import VideoFrames
+
+    d = tmp_path / "run"
+    render_frames(_map(4), seed=5, out_dir=d, **SMALL)
+    video = VideoFrames(_timed_video(d, tmp_path / "v" / "run.mov", np.arange(4) / 30))
+    video.times = [0.0, 1 / 30, 2 / 30, 3 / 30]
+    assert frame_times(video, 30.0).seconds is None and frame_times(video, 30.0).note is None
+    video.times = [0.0, 0.2, 0.3, 0.5]
+    np.testing.assert_array_equal(frame_times(video, 30.0).seconds, video.times)
+    played = frame_times(video, 1000.0)
+    assert played.seconds is None and "playback" in played.note and played.uneven > 0.01
+    video.times = [0.0, 0.2, 0.1, 0.5]
+    backwards = frame_times(video, 30.0)
+    assert backwards.seconds is None and "do not increase" in backwards.note
+    np.testing.assert_allclose(backwards.row_seconds(4, 30.0), np.arange(4) / 30)
+    np.testing.assert_allclose(frame_times(VideoFrames(video.path), 30.0).row_seconds(6, 30.0), np.arange(6) / 30)
+    np.testing.assert_allclose(FrameTimes(0.1, np.array([0.0, 0.2, 0.3])).row_seconds(5, 10.0),  # cut short
+                               [0.0, 0.2, 0.3, 0.4, 0.5])
 
 
 def test_a_video_whose_header_only_estimates_its_frames_has_the_frames_it_holds(tmp_path, caplog):
     """Matroska keeps no frame count: OpenCV announces its length times its nominal rate, 16 frames
     for the 8 of a phone slowing from 30 to 10 frames/s halfway. The map has the 8 frames read, none
-    of them bad (frame_times still flags the rate); the same file cut short keeps the frames missing
-    as NaN rows, warns that it is truncated and fails bad_frames."""
+    of them bad, at the times of their stamps; the same file cut short keeps the frames missing as
+    NaN rows, warns that it is truncated and fails bad_frames. QuickTime records its count: an even
+    stream that lost its last frame, though its last frame read ends in time, is warned about too."""
     d = tmp_path / "run"
     render_frames(_map(8), seed=5, out_dir=d, **SMALL)
     even = analyze(_timed_video(d, tmp_path / "even" / "run.mov", np.arange(8) / 30), save=False, progress=False)
     uneven_at = np.r_[np.arange(4) / 30, 3 / 30 + np.arange(1, 5) / 10]
     video = _timed_video(d, tmp_path / "uneven" / "run.mkv", uneven_at)
     assert cv2.VideoCapture(str(video)).get(cv2.CAP_PROP_FRAME_COUNT) == 16  # the header's estimate
-    with pytest.warns(QualityWarning, match="frame_times") as caught, caplog.at_level(logging.WARNING):
+    with warnings.catch_warnings(record=True) as caught, caplog.at_level(logging.WARNING):
+        warnings.simplefilter("always")
         whole = analyze(video, save=False, progress=False)
-    assert not any(issubclass(w.category, BadFrameWarning) for w in caught) and "truncated" not in caplog.text
-    assert whole.bad_frames == [] and np.array_equal(whole.n, even.n) and np.array_equal(whole.t, even.t)
-    assert [c.name for c in whole.quality.failed] == ["frame_times"]
+    assert caught == [] and "truncated" not in caplog.text
+    assert whole.bad_frames == [] and np.array_equal(whole.n, even.n) and whole.quality.ok
+    np.testing.assert_allclose(whole.t - whole.t[0], uneven_at, atol=1e-3)
     cut = tmp_path / "cut" / "run.mkv"
     cut.parent.mkdir()
     cut.write_bytes(video.read_bytes()[: int(0.6 * video.stat().st_size)])
@@ -251,7 +297,15 @@ def test_a_video_whose_header_only_estimates_its_frames_has_the_frames_it_holds(
           pytest.warns(BadFrameWarning, match="frame missing from the stream"), caplog.at_level(logging.WARNING)):
         short = analyze(cut, save=False, progress=False)
     assert "truncated" in caplog.text and 0 < len(short.bad_frames) < 16 and len(short.t) == 16
+    assert np.all(np.diff(short.t) > 0)  # the rows past the last frame read go on at fps
     assert "bad_frames" in {c.name for c in short.quality.failed}
+    lost = _timed_video(d, tmp_path / "lost" / "run.mov", np.arange(8) / 30)
+    lost.write_bytes(lost.read_bytes()[:-2000])  # the last frame's image cut short
+    caplog.clear()
+    with (pytest.warns(QualityWarning, match="bad_frames"),
+          pytest.warns(BadFrameWarning, match="frame missing from the stream"), caplog.at_level(logging.WARNING)):
+        cut_mov = analyze(lost, save=False, progress=False)
+    assert "truncated" in caplog.text and [n for n, _ in cut_mov.bad_frames] == [cut_mov.frame_names[7]]
 
 
 @pytest.mark.parametrize("damage, message", [

@@ -46,6 +46,7 @@ from granseg.measure.layers import (
 from granseg.measure.outline import class_shift
 from granseg.measure.preview import check_previews, write_previews
 from granseg.measure.quality import (
+    FRAME_TIMES_SHARE,
     Quality,
     QualityWarning,
     assess,
@@ -235,6 +236,7 @@ def analyze(
     if every_seconds is not None:
         every = frames_every(every_seconds, fps)
     source.keep(int(every), first)
+    filmed = fps  # per frame of the recording
     fps /= int(every)  # the map's rows per second
     _check_times(exp, fps, len(source))
     if smooth_seconds is not None:
@@ -255,10 +257,12 @@ def analyze(
     # from here on in the reduced frames' pixels (``seen``), until _in_frame_pixels
     classes = _classify(spheres, seen, crops, spots, ends_unmixed)
     shift = _level_classes(spheres, seen)
-    reduced = _assemble(spheres, seen, fps, smooth, names, bad)
+    times = frame_times(source, filmed)
+    reduced = _assemble(spheres, seen, times.row_seconds(len(spheres), fps), smooth, names, bad)
     reduced.classes, reduced.first, reduced.every = classes, first, int(every)
-    reduced.quality = _assess(reduced, shift, reduce,
-                              source.uneven_times() if isinstance(source, VideoFrames) else None)
+    reduced.quality = _assess(reduced, shift, reduce, times)
+    if times.note is not None:  # a warning where the stamps could not be read: frame_times fails then
+        log.log(logging.INFO if times.seconds is not None else logging.WARNING, "%s: %s", exp.path.parent, times.note)
     result = _in_frame_pixels(reduced, exp, reduce)
     if not result.quality.ok:
         warnings.warn(f"{exp.path.parent}: the map failed its quality checks: "
@@ -279,15 +283,71 @@ def analyze(
     return result
 
 
+# A video's own time stamps count the seconds it was filmed in only where it plays at about the
+# rate it was filmed at: a time-lapse (frames filmed seconds apart) or a high-speed camera's video
+# (a thousand frames a second) plays tens of times faster or slower, and its stamps count playback.
+# Where experiment.json's fps and the stream's own rate differ by more than this factor, the
+# stamps are not read as filming times. Not fitted: a phone's variable rate moves its stream's
+# average by a few tens of per cent at most (30 slowing to 20 frames/s), a time-lapse or a
+# slow-motion recording by ten times or more.
+PLAYBACK_FACTOR = 2.0
+
+
+@dataclass(frozen=True)
+class FrameTimes:
+    """When a video's frames were filmed, as far as its own time stamps tell.
+
+    uneven: how far the stamps stray from an even rate, as a share of the run
+    (VideoFrames.uneven_times; None: a frames directory, or a stream that tells no times);
+    seconds: each frame read's filming time since the first, from the stamps, where they stray by
+    more than quality.FRAME_TIMES_SHARE and can be read as filming times (None: frame k is k / fps
+    after the first, exactly or within that share); note: why uneven stamps were not read, or
+    that they were.
+    """
+
+    uneven: float | None = None
+    seconds: np.ndarray | None = None
+    note: str | None = None
+
+    def row_seconds(self, n: int, fps: float) -> np.ndarray:
+        """Each of ``n`` rows' time since the first [s]: k / fps, or the stamps where they are read
+        (rows past the last frame read, a stream cut short, go on at ``fps`` from it)."""
+        t = np.arange(n) / fps
+        if self.seconds is not None and len(self.seconds) and n:
+            k = min(len(self.seconds), n)
+            t[:k] = self.seconds[:k]
+            t[k:] = self.seconds[k - 1] + np.arange(1, n - k + 1) / fps
+        return t
+
+
+def frame_times(source: FrameDirectory | VideoFrames, fps: float) -> FrameTimes:
+    """How the frames just read were filmed in time (FrameTimes); ``fps``: the rate filmed at,
+    experiment.json's (or the stream's where it gives none), per frame of the stream."""
+    if not isinstance(source, VideoFrames):
+        return FrameTimes()
+    uneven = source.uneven_times()
+    if uneven is None or uneven <= FRAME_TIMES_SHARE:
+        return FrameTimes(uneven)
+    stamps = np.asarray(source.times, dtype=float)
+    why = (f"frames filmed at an uneven rate (their own time stamps stray from an even one by {uneven:.0%} of "
+           f"the run), ")
+    if not np.all(np.diff(stamps) > 0):
+        return FrameTimes(uneven, None, why + f"but the stamps do not increase: times taken as frames at {fps:g} fps")
+    plays = source.fps or fps
+    if not 1 / PLAYBACK_FACTOR <= plays / fps <= PLAYBACK_FACTOR:
+        return FrameTimes(uneven, None, why + f"but the video plays at {plays:g} frames/s against the {fps:g} "
+                                              f"filmed (a time-lapse or high-speed recording), so its stamps count "
+                                              f"playback: times taken as frames at {fps:g} fps")
+    return FrameTimes(uneven, stamps - stamps[0], why + "times from the stamps")
+
+
 @dataclass
 class Detected:
     """The spheres of every frame of a recording, without their classes (:func:`detect_frames`).
 
     spheres: per frame, FrameSpheres (centres in undistorted px) or None for a bad frame;
     names: the frames' names; fps [1/s]; bad_frames: (name, problem) of the frames left out;
-    times: a video's own time [s] of each frame (its presentation stamp; None for a frames
-    directory, or where the stream did not give every frame one) and uneven_times how far they
-    stray from an even rate, as a share of the run (VideoFrames.uneven_times).
+    times: when the frames were filmed, as far as a video's own stamps tell (FrameTimes).
     """
 
     experiment: Experiment
@@ -295,8 +355,7 @@ class Detected:
     spheres: list[FrameSpheres | None]
     names: list[str]
     bad_frames: list[tuple[str, str]]
-    times: np.ndarray | None = None
-    uneven_times: float | None = None
+    times: FrameTimes = field(default_factory=FrameTimes)
 
 
 def detect_frames(path: str | os.PathLike, *, workers: int | None = None, progress: bool = True) -> Detected:
@@ -311,11 +370,7 @@ def detect_frames(path: str | os.PathLike, *, workers: int | None = None, progre
     source.keep(first=first)
     reduce = analysis_reduction(exp.particle_diameter_px)
     spheres, _, bad, names, _ = _detect_all(source, exp, workers, progress, set(), describe=False, reduce=reduce)
-    times = uneven = None
-    if isinstance(source, VideoFrames):
-        uneven = source.uneven_times()
-        times = np.asarray(source.times, dtype=float) if len(source.times) == len(spheres) else None
-    return Detected(exp, fps, [_sphere_pixels(s, reduce) for s in spheres], names, bad, times, uneven)
+    return Detected(exp, fps, [_sphere_pixels(s, reduce) for s in spheres], names, bad, frame_times(source, fps))
 
 
 # The detector's lengths in pixels (the rim search's 1.5 px, the smoothing, the
@@ -884,9 +939,9 @@ def _level_classes(spheres: list[FrameSpheres | None], exp: Experiment) -> tuple
 
 
 def _assess(result: Analysis, shift: tuple[float, int] = (0.0, 0), reduce: int = 1,
-            frame_times: float | None = None) -> Quality:
-    """The quality record of ``result`` (analysed in frames reduced ``reduce`` times; ``frame_times``:
-    how far a video's frames stray from an even rate, quality.assess)."""
+            times: FrameTimes | None = None) -> Quality:
+    """The quality record of ``result`` (analysed in frames reduced ``reduce`` times; ``times``: when
+    a video's frames were filmed, and whether the map's times come from their stamps)."""
     good = [s for s in result.spheres if s is not None]
     first = good[0]
     learned = result.classes is not None
@@ -917,7 +972,7 @@ def _assess(result: Analysis, shift: tuple[float, int] = (0.0, 0), reduce: int =
         frames_reduced=reduce,
         frames_every=result.every,
         frames_first=result.first,
-        frame_times=frame_times,
+        frame_times=None if times is None or times.uneven is None else (times.uneven, times.seconds is not None),
         spacing=(sphere_spacing(centres, d), d * reduce),
         across_view=(spacing_across_view(centres, float(np.asarray(result.experiment.camera_matrix)[1, 2])),
                      bool(np.any(result.experiment.dist_coeffs != 0))),
@@ -981,7 +1036,8 @@ def write_detections(path: str | os.PathLike, result: Analysis, force: bool = Fa
 # --------------------------------------------------------------------------- the map
 
 
-def _assemble(spheres, exp, fps, smooth, names, bad) -> Analysis:
+def _assemble(spheres, exp, seconds, smooth, names, bad) -> Analysis:
+    """The map of ``spheres`` (per frame, or None), its rows ``seconds`` after the first."""
     n_t = len(spheres)
     n = np.zeros((n_t, N_LAYERS), dtype=np.int64)
     nh = np.zeros((n_t, N_LAYERS), dtype=np.int64)
@@ -994,7 +1050,7 @@ def _assemble(spheres, exp, fps, smooth, names, bad) -> Analysis:
     c_raw[missing] = np.nan
     c = moving_average(c_raw, smooth, axis=0)
     c[~np.isfinite(c_raw)] = np.nan
-    t = exp.t0 + np.arange(n_t) / fps
+    t = exp.t0 + seconds
     z = (np.arange(N_LAYERS) + 0.5) * D_P
     return Analysis(c, c_raw, n, nh, t, z, smooth, exp, names, spheres, bad)
 

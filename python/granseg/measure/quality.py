@@ -125,7 +125,8 @@ WALL_LINE_QUANTILE = 20
 WALL_LINE_SLACK = 0.1
 # A video's frames are taken as filmed at an even rate: the map's time of frame k is k / fps.
 # Where the stream's own time stamps stray from a straight line by more than this share of the
-# run's length, the map's times are off by as much. A round rule, not fitted to any run: one
+# run's length, the map's times are the stamps instead (pipeline.frame_times), or, where the
+# stamps cannot be read as filming times, off by as much. A round rule, not fitted to any run: one
 # frame dropped in an hour at 30 fps strays by 5e-6; a phone slowing from 30 to 20 frames/s for
 # one minute of ten by 0.016, ten seconds at worst; the test's phone, slowing to 10 frames/s for
 # the second half, by 0.12 (tests/test_measure_inputs.py).
@@ -274,10 +275,12 @@ ADVICE = {
                            "not take the lens's distortion off. Give camera_matrix and dist_coeffs from granseg "
                            "calibrate-camera (a checkerboard filmed with the same camera and settings); without "
                            "them analyze takes a pinhole without distortion. Mend this before the window's lines",
-    "frame_times": "the video was not filmed at an even rate (a phone's variable frame rate), but the map's times "
-                   "count frames (frame number / fps), so they are off by this share of the run: re-encode it at a "
-                   "constant rate (ffmpeg -i IN.mp4 -fps_mode cfr -r 30 OUT.mp4 repeats or drops frames so that "
-                   "frame k is the one filmed at k / 30 s) and analyse that",
+    "frame_times": "the video was not filmed at an even rate (a phone's variable frame rate), and its own time "
+                   "stamps could not be read as the times it was filmed (they do not increase, or it plays far "
+                   "faster or slower than the fps given: a time-lapse or a high-speed recording; the log says "
+                   "which), so the map's times count frames (frame number / fps) and are off by this share of "
+                   "the run: re-encode it at a constant rate (ffmpeg -i IN.mp4 -fps_mode cfr -r 30 OUT.mp4 "
+                   "repeats or drops frames so that frame k is the one filmed at k / 30 s) and analyse that",
 }
 
 
@@ -309,7 +312,7 @@ def assess(*, n: np.ndarray, n_heavy: np.ndarray, c0: float, first_heights: np.n
            walls: WallLines | None = None, learned_from_end: bool = False,
            light_contrast: float | None = None, light_share: float | None = None,
            frames_reduced: int = 1, frames_every: int = 1, frames_first: int = 0,
-           frame_times: float | None = None, spacing: tuple[float, float] | None = None,
+           frame_times: tuple[float, bool] | None = None, spacing: tuple[float, float] | None = None,
            across_view: tuple[float, bool] | None = None) -> Quality:
     """Run every check on one analysed run.
 
@@ -359,8 +362,11 @@ def assess(*, n: np.ndarray, n_heavy: np.ndarray, c0: float, first_heights: np.n
     of the recording (the figure ``frames_every``), from its frame
     frames_first on (the figure ``frames_first``: > 0 where the camera was
     started before the plate, a negative t0); frame_times: how far a video's frames' own times
-    stray from an even rate, as a share of the run's length (``VideoFrames.uneven_times``; None:
-    frames from a directory, or a stream that tells no times: not checked);
+    stray from an even rate, as a share of the run's length (``VideoFrames.uneven_times``; the
+    figure ``frame_times_uneven``), and whether the map's times are those stamps (the figure
+    ``frame_times_from_stamps``); the check is how far the map's times stray from the stamps: 0
+    where they are the stamps (None: frames from a directory, or a stream that tells no times: not
+    checked);
     spacing: the median distance from a sphere found to the nearest other
     one in its frame, in diameters (:func:`sphere_spacing`), and the
     diameter given [px in the frames as read] (None: not checked);
@@ -379,8 +385,9 @@ def assess(*, n: np.ndarray, n_heavy: np.ndarray, c0: float, first_heights: np.n
               *_count_checks(n[good], n_heavy[good], c0),
               _check("bad_frames", n_bad_frames / max(n_t, 1), 0.05, "<=", "share of frames without a reading")]
     if frame_times is not None:
-        checks.append(_check("frame_times", frame_times, FRAME_TIMES_SHARE, "<=",
-                             "largest stray of a frame's own time from an even rate, share of the run"))
+        uneven, from_stamps = frame_times
+        checks.append(_check("frame_times", 0.0 if from_stamps else uneven, FRAME_TIMES_SHARE, "<=",
+                             "largest stray of the map's times from the frames' own, share of the run"))
     figures = {
         "spheres_per_frame": float(n[good].sum(axis=1).mean()) if good.any() else 0.0,
         "wall_detections_per_frame": float(wall_detections),
@@ -407,6 +414,8 @@ def assess(*, n: np.ndarray, n_heavy: np.ndarray, c0: float, first_heights: np.n
     for name, flags in (placed or {}).items():
         if len(flags):
             figures[name] = float(np.mean(flags))
+    if frame_times is not None:
+        figures.update(frame_times_uneven=float(frame_times[0]), frame_times_from_stamps=bool(frame_times[1]))
     if across_view is not None:
         figures["spacing_across_view"] = float(across_view[0]) if np.isfinite(across_view[0]) else None
     if spacing is not None:

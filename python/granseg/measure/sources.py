@@ -184,7 +184,8 @@ class VideoFrames:
 
     ``first``, ``every``: frame i is the stream's frame first + i x every (:meth:`keep`; 0 and 1,
     all of them); the frames before and between are only grabbed or sought, not converted.
-    ``expected`` is how many of those frames the header announces, ``decoded`` how many the last
+    ``expected`` is how many of those frames the header announces (exact where ``counted``, the
+    container records its frame count: :func:`keeps_frame_count`), ``decoded`` how many the last
     full read found (None before one), ``sought`` how many of them it reached by a seek, ``times``
     the stream's own time [s] of each (its presentation time stamp; :meth:`uneven_times`).
     """
@@ -200,6 +201,7 @@ class VideoFrames:
         if not ok:
             raise ValueError(f"{path}: not a video OpenCV can open")
         self.path = path
+        self.counted = keeps_frame_count(path)
         self.decoded: int | None = None
         self.sought = 0
         self.times: list[float] = []
@@ -242,12 +244,15 @@ class VideoFrames:
             self.decoded, self.sought = i, self.mover.seeks - seeks
 
     def read_to_its_end(self) -> bool:
-        """Whether the last full read's frames reach the end of the stream in time: the last frame
-        kept was filmed within ``every`` + 1 frames (at the header's rate) of the length the header
-        announces (its frame count over its rate). A container that keeps no frame count (Matroska,
-        WebM) announces its duration times its nominal rate, more frames than a variable-rate
-        stream holds; such a stream ends early but whole. A file cut short ends early in time too.
-        False where the stream tells no times or no rate."""
+        """Whether the last full read's frames reach the end of the stream. In a container that
+        records its frame count (``counted``), where they are as many as it announces. In one that
+        keeps none (Matroska, WebM), OpenCV announces the duration times the nominal rate, more
+        frames than a variable-rate stream holds, so such a stream ends early but whole: there,
+        where the last frame kept was filmed within ``every`` + 1 frames (at the header's rate) of
+        the length announced (a file cut short ends early in time too); False where the stream
+        tells no times or no rate."""
+        if self.counted:
+            return self.decoded is not None and self.decoded >= self.expected
         if not self.times or not self.fps or self.fps <= 0 or not np.isfinite(self.times[-1]):
             return False
         return self.times[-1] >= (self.in_stream - self.every - 1) / self.fps
@@ -288,6 +293,16 @@ class VideoFrames:
                     yield i, reduce_frame(img, reduce)
         finally:
             cap.release()
+
+
+def keeps_frame_count(path: Path) -> bool:
+    """Whether the video's container records how many frames it holds, so that OpenCV's count is
+    exact: ISO media (MP4, QuickTime, 3GP: a box 'ftyp', 'moov', 'mdat', 'wide', 'free' or 'skip'
+    first) and AVI ('RIFF' ... 'AVI '). Matroska, WebM, MPEG-TS and raw streams keep none."""
+    with path.open("rb") as f:
+        head = f.read(12)
+    return head[4:8] in (b"ftyp", b"moov", b"mdat", b"wide", b"free", b"skip") or (
+        head[:4] == b"RIFF" and head[8:12] == b"AVI ")
 
 
 class _Mover:

@@ -24,8 +24,9 @@ What the paper did by hand in ImageJ, per recording:
    side of a 9-diameter window on the paper's 0.19 m cell).
 
 Frame k was filmed at k / fps, unless a video's own time stamps stray from an even rate (a
-camera slowing down in dim light, as phones do): then the stamps are the frames' times, for the
-guess, the co-moving frame and the durations alike (:func:`_clock`).
+camera slowing down in dim light, as phones do) and the video plays at about the rate it was
+filmed: then the stamps are the frames' times, for the guess, the co-moving frame and the
+durations alike (:func:`_clock`, measure.pipeline.frame_times).
 
 Errors: the recording is cut into :data:`BLOCKS` consecutive time blocks; a layer's
 standard error is the spread of its block velocities over sqrt(blocks), which holds
@@ -58,7 +59,6 @@ from granseg.errors import short_repr
 from granseg.measure.experiment import load_experiment
 from granseg.measure.layers import height
 from granseg.measure.pipeline import Detected, detect_frames
-from granseg.measure.quality import FRAME_TIMES_SHARE
 from granseg.measure.sources import open_frames
 from granseg.model import _finite, defaults
 from granseg.velocity.profile import VelocityProfile
@@ -260,18 +260,11 @@ def _layer_speeds(tracks: np.ndarray, clock: np.ndarray, fps: float, n_layers: i
 
 def _clock(det: Detected) -> tuple[np.ndarray, str | None]:
     """Each frame's time in frames at ``det.fps``: its place in the recording, or, where a video's
-    own time stamps stray from an even rate by more than quality.FRAME_TIMES_SHARE of the run (a
-    phone slowing its rate in dim light), the stamps (times fps), and a note that says so. Stamps
-    of an even rate are not read: a time-lapse plays its frames faster than it filmed them."""
-    index = np.arange(len(det.spheres), dtype=float)
-    if det.times is None or det.uneven_times is None or det.uneven_times <= FRAME_TIMES_SHARE:
-        return index, None
-    if not np.all(np.diff(det.times) > 0):
-        return index, (f"frames filmed at an uneven rate, and their time stamps do not increase: "
-                       f"speeds taken at {det.fps:g} fps may be off")
-    return (det.times - det.times[0]) * det.fps, (
-        f"frames filmed at an uneven rate (their time stamps stray from an even one by "
-        f"{det.uneven_times:.0%} of the run): speeds from the stamps")
+    own time stamps stray from an even rate and tell when it was filmed (pipeline.frame_times: a
+    phone slowing its rate in dim light), the stamps (times fps); and a note where they stray."""
+    if det.times.seconds is None:  # the index itself, not (k / fps) x fps, which rounds
+        return np.arange(len(det.spheres), dtype=float), det.times.note
+    return det.times.row_seconds(len(det.spheres), det.fps) * det.fps, det.times.note
 
 
 def track_recording(path: str | os.PathLike, *, D_p: float = D_P, prior: np.ndarray | None = None,
