@@ -271,6 +271,73 @@ def test_stamps_are_read_as_times_only_where_they_can_be(tmp_path):
                                [0.0, 0.2, 0.3, 0.4, 0.5])
 
 
+def _shot_stills(d, out, shot_at, fps, names=None):
+    """The frames of folder ``d`` as camera JPEGs in ``out``: frame k named ``names[k]`` (default
+    frame_NNNN.jpg) and shot ``shot_at[k]`` s after 10:00 by its EXIF clock, to the second;
+    experiment.json the folder's with ``fps``."""
+    from PIL import Image
+
+    out.mkdir()
+    for k, (png, at) in enumerate(zip(sorted(d.glob("*.png")), shot_at, strict=True)):
+        exif = Image.Exif()
+        exif.get_ifd(0x8769)[36867] = f"2026:12:01 10:{int(at) // 60:02d}:{int(at) % 60:02d}"  # DateTimeOriginal
+        Image.open(png).convert("RGB").save(out / (names[k] if names else f"frame_{k:04d}.jpg"), quality=95, exif=exif)
+    (out / "experiment.json").write_text(json.dumps({**json.loads((d / "experiment.json").read_text()), "fps": fps}))
+    return out
+
+
+def test_shot_times_read_the_sub_seconds_and_need_every_file_to_carry_a_clock(tmp_path):
+    from PIL import Image
+
+    from granseg.measure.sources import shot_times
+
+    files = []
+    for k, (stamp, sub) in enumerate([("2026:12:01 23:59:59", "5"), ("2026:12:02 00:00:01", "25"),
+                                      ("2026:12:02 00:00:02", None)]):
+        exif = Image.Exif()
+        exif.get_ifd(0x8769)[36867] = stamp
+        if sub is not None:
+            exif.get_ifd(0x8769)[37521] = sub
+        files.append(tmp_path / f"{k}.jpg")
+        Image.new("RGB", (8, 8)).save(files[-1], exif=exif)
+    seconds, resolution = shot_times(files)
+    np.testing.assert_allclose(seconds, [0.5, 2.25, 3.0])  # across midnight, from the first's whole second
+    assert resolution == 1.0  # the coarsest: the last carries no sub-seconds
+    assert shot_times(files[:2])[1] == pytest.approx(0.1)
+    Image.new("RGB", (8, 8)).save(tmp_path / "plain.jpg")
+    (tmp_path / "broken.jpg").write_bytes(b"\xff\xd8\xff\xe1\x00\x10Exif\x00\x00MM\x00*garbage")
+    assert shot_times([*files, tmp_path / "plain.jpg"]) is None and shot_times([tmp_path / "broken.jpg"]) is None
+
+
+def test_stills_are_timed_by_their_camera_clock_where_it_disagrees(tmp_path, caplog):
+    """A camera's stills carry the time each was shot (EXIF, to the second). Shot every 2 s as fps
+    0.5 says, the map's times are k / fps and frame_times passes; with fps given as 0.2 (one every
+    5 s, a slip), the map's times are the clock's and a warning says to check fps; with the camera's
+    file numbers rolled over (IMG_9998, IMG_9999 named after IMG_0001..) frame_times fails, naming
+    the frames. Stills without a clock are not checked (the other tests' PNGs)."""
+    from granseg.measure import quality
+
+    d = tmp_path / "run"
+    render_frames(_map(8), seed=5, out_dir=d, **SMALL)
+    every_2s = np.arange(8) * 2.0
+    even = analyze(_shot_stills(d, tmp_path / "even", every_2s, 0.5), save=False, progress=False)
+    (check,) = [c for c in even.quality.checks if c.name == "frame_times"]
+    assert check.passed and even.quality.figures["frame_times_from_stamps"] is False
+    np.testing.assert_allclose(np.diff(even.t), 2.0)
+    with caplog.at_level(logging.WARNING):
+        slip = analyze(_shot_stills(d, tmp_path / "slip", every_2s, 0.2), save=False, progress=False)
+    assert "check fps" in caplog.text and slip.quality.ok and slip.quality.figures["frame_times_from_stamps"]
+    np.testing.assert_allclose(slip.t - slip.t[0], every_2s)
+    assert np.array_equal(slip.n, even.n)
+    names = [f"IMG_{9998 + k:04d}.JPG" if k < 2 else f"IMG_{k - 1:04d}.JPG" for k in range(8)]
+    caplog.clear()
+    with pytest.warns(QualityWarning, match="frame_times"), caplog.at_level(logging.WARNING):
+        rolled = analyze(_shot_stills(d, tmp_path / "rolled", every_2s, 0.5, names), save=False, progress=False)
+    assert "IMG_9998.JPG was shot before IMG_0006.JPG" in caplog.text
+    (check,) = [c for c in rolled.quality.checks if c.name == "frame_times"]
+    assert not check.passed and check.value > 3 * quality.FRAME_TIMES_SHARE
+
+
 def test_a_video_whose_header_only_estimates_its_frames_has_the_frames_it_holds(tmp_path, caplog):
     """Matroska keeps no frame count: OpenCV announces its length times its nominal rate, 16 frames
     for the 8 of a phone slowing from 30 to 10 frames/s halfway. The map has the 8 frames read, none

@@ -55,7 +55,14 @@ from granseg.measure.quality import (
     vacancies,
     wall_lines,
 )
-from granseg.measure.sources import BadFrame, FrameDirectory, VideoFrames, check_size, open_frames
+from granseg.measure.sources import (
+    BadFrame,
+    FrameDirectory,
+    VideoFrames,
+    check_size,
+    open_frames,
+    shot_times,
+)
 from granseg.measure.wall import remove_wall_glare
 
 __all__ = ["Analysis", "BadFrameWarning", "GreyFramesWarning", "Detected", "FrameSpheres", "analyze", "detect_frames", "write_detections"]
@@ -261,8 +268,8 @@ def analyze(
     reduced = _assemble(spheres, seen, times.row_seconds(len(spheres), fps), smooth, names, bad)
     reduced.classes, reduced.first, reduced.every = classes, first, int(every)
     reduced.quality = _assess(reduced, shift, reduce, times)
-    if times.note is not None:  # a warning where the stamps could not be read: frame_times fails then
-        log.log(logging.INFO if times.seconds is not None else logging.WARNING, "%s: %s", exp.path.parent, times.note)
+    if times.note is not None:
+        log.log(logging.WARNING if times.warn else logging.INFO, "%s: %s", exp.path.parent, times.note)
     result = _in_frame_pixels(reduced, exp, reduce)
     if not result.quality.ok:
         warnings.warn(f"{exp.path.parent}: the map failed its quality checks: "
@@ -295,19 +302,23 @@ PLAYBACK_FACTOR = 2.0
 
 @dataclass(frozen=True)
 class FrameTimes:
-    """When a video's frames were filmed, as far as its own time stamps tell.
+    """When the frames were filmed, as far as their own time stamps tell: a video's presentation
+    stamps, or the camera clock's time of each still (EXIF, sources.shot_times).
 
-    uneven: how far the stamps stray from an even rate, as a share of the run
-    (VideoFrames.uneven_times; None: a frames directory, or a stream that tells no times);
-    seconds: each frame read's filming time since the first, from the stamps, where they stray by
-    more than quality.FRAME_TIMES_SHARE and can be read as filming times (None: frame k is k / fps
-    after the first, exactly or within that share); note: why uneven stamps were not read, or
-    that they were.
+    uneven: how far the stamps stray from an even rate, as a share of the run: a video's from the
+    straight line through them (VideoFrames.uneven_times: its rate is the stream's own), a still's
+    from the fps given, beyond the clock's resolution (a camera's clock is the filming clock);
+    None: frames that tell no times, not checked. seconds: each frame's filming time since the
+    first, from the stamps, where they stray by more than quality.FRAME_TIMES_SHARE and can be
+    read as filming times (None: frame k is k / fps after the first, exactly or within that
+    share); note: why uneven stamps were not read, or that they were, and warn whether to say so as
+    a warning (stamps not read; a camera's clock that disagrees with the fps given) or for the record.
     """
 
     uneven: float | None = None
     seconds: np.ndarray | None = None
     note: str | None = None
+    warn: bool = False
 
     def row_seconds(self, n: int, fps: float) -> np.ndarray:
         """Each of ``n`` rows' time since the first [s]: k / fps, or the stamps where they are read
@@ -323,8 +334,8 @@ class FrameTimes:
 def frame_times(source: FrameDirectory | VideoFrames, fps: float) -> FrameTimes:
     """How the frames just read were filmed in time (FrameTimes); ``fps``: the rate filmed at,
     experiment.json's (or the stream's where it gives none), per frame of the stream."""
-    if not isinstance(source, VideoFrames):
-        return FrameTimes()
+    if isinstance(source, FrameDirectory):
+        return _shot_times(source, fps)
     uneven = source.uneven_times()
     if uneven is None or uneven <= FRAME_TIMES_SHARE:
         return FrameTimes(uneven)
@@ -332,13 +343,43 @@ def frame_times(source: FrameDirectory | VideoFrames, fps: float) -> FrameTimes:
     why = (f"frames filmed at an uneven rate (their own time stamps stray from an even one by {uneven:.0%} of "
            f"the run), ")
     if not np.all(np.diff(stamps) > 0):
-        return FrameTimes(uneven, None, why + f"but the stamps do not increase: times taken as frames at {fps:g} fps")
+        return FrameTimes(uneven, None, why + f"but the stamps do not increase: times taken as frames at {fps:g} fps",
+                          True)
     plays = source.fps or fps
     if not 1 / PLAYBACK_FACTOR <= plays / fps <= PLAYBACK_FACTOR:
         return FrameTimes(uneven, None, why + f"but the video plays at {plays:g} frames/s against the {fps:g} "
                                               f"filmed (a time-lapse or high-speed recording), so its stamps count "
-                                              f"playback: times taken as frames at {fps:g} fps")
+                                              f"playback: times taken as frames at {fps:g} fps", True)
     return FrameTimes(uneven, stamps - stamps[0], why + "times from the stamps")
+
+
+def _shot_times(source: FrameDirectory, fps: float) -> FrameTimes:
+    """frame_times of stills, from their camera's clock (sources.shot_times): where it strays from
+    one every 1 / ``fps`` s by more than its resolution and FRAME_TIMES_SHARE of the run (an fps
+    given wrong, shots the camera missed), the map's times are the clock's; where the clock
+    says the names do not sort in the order shot (a camera's file numbers rolling over from 9999
+    to 0001), or gives two stills one time, they cannot be, and frame_times fails."""
+    shot = shot_times(source.files) if len(source) >= 3 else None
+    if shot is None:
+        return FrameTimes()
+    clock, resolution = shot
+    k = np.arange(len(clock)) * source.every  # images of the directory since the first kept
+    stray = np.max(np.abs(clock - clock[0] - k / fps)) - resolution  # floored seconds: off by < 1 step
+    uneven = max(float(stray), 0.0) / (k[-1] / fps)
+    if uneven <= FRAME_TIMES_SHARE:
+        return FrameTimes(uneven)
+    why = (f"the stills' own clock (EXIF) strays from one every {1 / fps:.4g} s by {uneven:.0%} of the run "
+           f"(it shot one every {(clock[-1] - clock[0]) / k[-1]:.4g} s on average), ")
+    back = np.flatnonzero(np.diff(clock) < 0)
+    if back.size:
+        return FrameTimes(uneven, None, why + f"but {source.names[back[0] + 1]} was shot before "
+                                              f"{source.names[back[0]]}, though its name sorts after (a camera's "
+                                              f"file numbers rolling over?): name the frames in the order shot",
+                          True)
+    if not np.all(np.diff(clock) > 0):
+        return FrameTimes(uneven, None, why + f"but it gives stills one time (a resolution of {resolution:g} s): "
+                                              f"check fps", True)
+    return FrameTimes(uneven, clock - clock[0], why + "times from the clock (check fps)", True)
 
 
 @dataclass

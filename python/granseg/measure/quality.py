@@ -361,12 +361,12 @@ def assess(*, n: np.ndarray, n_heavy: np.ndarray, c0: float, first_heights: np.n
     frames' pixels; frames_every: the map's rows are every this-many-th frame
     of the recording (the figure ``frames_every``), from its frame
     frames_first on (the figure ``frames_first``: > 0 where the camera was
-    started before the plate, a negative t0); frame_times: how far a video's frames' own times
-    stray from an even rate, as a share of the run's length (``VideoFrames.uneven_times``; the
-    figure ``frame_times_uneven``), and whether the map's times are those stamps (the figure
-    ``frame_times_from_stamps``); the check is how far the map's times stray from the stamps: 0
-    where they are the stamps (None: frames from a directory, or a stream that tells no times: not
-    checked);
+    started before the plate, a negative t0); frame_times: how far the frames' own times (a video's
+    stamps, a camera's clock) stray from an even rate, as a share of the run's length
+    (``pipeline.FrameTimes.uneven``; the figure ``frame_times_uneven``), and whether the map's
+    times are those (the figure ``frame_times_from_stamps``); the check is how far the map's times
+    stray from the frames' own: 0 where they are the frames' own (None: frames that tell no times:
+    not checked);
     spacing: the median distance from a sphere found to the nearest other
     one in its frame, in diameters (:func:`sphere_spacing`), and the
     diameter given [px in the frames as read] (None: not checked);

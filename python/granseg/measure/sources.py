@@ -124,6 +124,31 @@ def read_image(path: Path, reduce: int = 1, size: tuple[int, int] | None = None)
     return reduce_frame(img, reduce)
 
 
+def shot_times(files: list[Path]) -> tuple[np.ndarray, float] | None:
+    """When each still was shot by its camera's clock, in seconds since the first (EXIF
+    DateTimeOriginal, with SubSecTimeOriginal where given), and the clock's resolution [s]: 1
+    without sub-seconds, the coarsest of the files. None where a file carries no such time (a
+    PNG, or a JPEG written by a program rather than a camera) or cannot be opened."""
+    from datetime import datetime
+
+    from PIL import Image
+
+    times, resolution, start = [], 0.0, None
+    for path in files:
+        try:
+            with Image.open(path) as im:
+                exif = im.getexif().get_ifd(0x8769)  # the Exif IFD
+            shot = datetime.strptime(str(exif.get(36867)).strip("\x00 "), "%Y:%m:%d %H:%M:%S")
+        except Exception:  # noqa: BLE001 - a malformed header (struct, key, bomb errors alike) tells no time
+            return None
+        digits = str(exif.get(37521, "")).strip("\x00 ")
+        fraction, step = (int(digits) / 10 ** len(digits), 10.0 ** -len(digits)) if digits.isdigit() else (0.0, 1.0)
+        start = shot if start is None else start
+        times.append((shot - start).total_seconds() + fraction)
+        resolution = max(resolution, step)
+    return (np.asarray(times, dtype=float), resolution) if times else None
+
+
 def check_size(name: str, own: tuple[int, int], size: tuple[int, int] | None) -> None:
     """BadFrame naming frame ``name`` when its own size (width, height) is not ``size`` (the first
     frame's; None: any)."""
