@@ -94,3 +94,23 @@ def test_init_experiment_keeps_an_existing_file_and_lists_what_is_missing(tmp_pa
     assert main(["init-experiment", str(tmp_path / "rec"), "--c0", "0.4"]) == 2
     assert "exists" in capsys.readouterr().err
     assert (tmp_path / "rec" / "experiment.json").read_text() == before
+
+
+def test_init_experiment_reads_the_stills_rate_off_their_camera_clock(tmp_path, capsys, caplog):
+    """Stills carrying their camera's clock (EXIF, to the second) give fps: 60 shot every 2 s span
+    118 s, which the clock resolves to 1 %; 5 of them span 8 s, too short, and fps stays to fill in."""
+    from PIL import Image
+
+    for name, n in (("long", 60), ("short", 5)):
+        (tmp_path / name).mkdir()
+        for k in range(n):
+            exif = Image.Exif()
+            exif.get_ifd(0x8769)[36867] = f"2026:12:01 10:{2 * k // 60:02d}:{2 * k % 60:02d}"  # DateTimeOriginal
+            Image.new("RGB", (80, 60)).save(tmp_path / name / f"IMG_{k:04d}.JPG", exif=exif)
+    with caplog.at_level("INFO"):
+        assert main(["init-experiment", str(tmp_path / "long"), "--no-preview"]) == 0
+    assert json.loads((tmp_path / "long" / "experiment.json").read_text())["fps"] == 0.5
+    assert "fps = 0.5 from the stills' clock" in caplog.text and "fps" not in capsys.readouterr().out
+    assert main(["init-experiment", str(tmp_path / "short"), "--no-preview"]) == 0
+    assert json.loads((tmp_path / "short" / "experiment.json").read_text())["fps"] is None
+    assert "fps" in capsys.readouterr().out.split("still to fill in")[1]

@@ -3,7 +3,7 @@
 A lab's first recording needs an experiment.json (docs/formats.md) before ``granseg analyze``
 can read it. :func:`init_experiment` writes one beside the frames (or the video) from what is
 known: the materials (densities from the model's table), c0 and the masses, the frame rate
-(a video's own), the camera model from ``granseg calibrate-camera``'s JSON, and the window.
+(a video's own; stills' from their camera's clock, :func:`clock_rate`), the camera model from ``granseg calibrate-camera``'s JSON, and the window.
 Fields it cannot know are left ``null`` and listed, and every field is explained in the
 file's ``_help`` object (the reader ignores keys starting with ``_``).
 
@@ -16,6 +16,7 @@ window's height over the bed's 15 layers (the window spans lid to plate).
 from __future__ import annotations
 
 import json
+import logging
 import os
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -27,9 +28,16 @@ import numpy as np
 from granseg._io import atomic_write, check_writable, read_json
 from granseg.constants import N_LAYERS
 from granseg.measure.camera import Undistorter
-from granseg.measure.sources import FrameDirectory, VideoFrames, open_frames
+from granseg.measure.sources import FrameDirectory, VideoFrames, open_frames, shot_times
 
-__all__ = ["HELP", "init_experiment", "preview_path", "window_preview"]
+__all__ = ["HELP", "clock_rate", "init_experiment", "preview_path", "window_preview"]
+
+log = logging.getLogger(__name__)
+
+# Stills' rate is read off their camera's clock only where the clock's resolution (a second,
+# without sub-seconds) is at most this share of the time from the first shot to the last, so that
+# the rate is known within it: the share the frame_times check allows (quality.FRAME_TIMES_SHARE).
+CLOCK_RESOLUTION_SHARE = 0.01
 
 #: what each field means, with its unit: written into the template as ``_help``
 HELP: dict[str, str] = {
@@ -41,8 +49,8 @@ HELP: dict[str, str] = {
     "c0": "heavy share of the bed by volume, strictly between 0 and 1",
     "M_g": "mass of the grains in the cell [kg]",
     "M_w": "load on the lid: lid plus added masses [kg]",
-    "fps": "frames per second [1/s]; for stills taken every S seconds, 1/S; null for a video "
-           "(its own rate is used)",
+    "fps": "frames per second [1/s]; for stills taken every S seconds, 1/S (read off the camera's clock "
+           "where the stills carry one); null for a video (its own rate is used)",
     "t0": "time of the first frame since the plate started [s]; negative if the camera started first",
     "camera_matrix": "OpenCV camera matrix [[fx,0,cx],[0,fy,cy],[0,0,1]] [px], from granseg calibrate-camera "
                      "(without one: a pinhole without distortion centred on the image)",
@@ -97,7 +105,7 @@ def init_experiment(
         "c0": None if c0 is None else _share(c0),
         "M_g": None if M_g is None else _positive("M_g", M_g),
         "M_w": None if M_w is None else _positive("M_w", M_w),
-        "fps": _positive("fps", rates[0]) if rates else None,
+        "fps": _positive("fps", rates[0]) if rates else clock_rate(source),
         "t0": 0.0,
         "camera_matrix": k.tolist(), "dist_coeffs": dist.tolist(),
         "window": None if window is None else _window(window, (w, h)),
@@ -153,6 +161,25 @@ def window_preview(frame: np.ndarray, camera_matrix: Any, dist_coeffs: Any,
 
 
 # --------------------------------------------------------------------------- fields
+
+
+def clock_rate(source: FrameDirectory | VideoFrames) -> float | None:
+    """Stills' frame rate [1/s] from their camera's clock (sources.shot_times): the shots after the
+    first over the time from the first to the last, to 4 digits. None for a video (its own rate
+    is used), stills without a clock, a clock that runs backwards in name order, or one too coarse
+    for the time the stills span (CLOCK_RESOLUTION_SHARE)."""
+    if not isinstance(source, FrameDirectory) or len(source) < 2:
+        return None
+    shot = shot_times(source.files)
+    if shot is None:
+        return None
+    clock, resolution = shot
+    span = float(clock[-1] - clock[0])
+    if np.any(np.diff(clock) < 0) or span <= 0 or resolution > CLOCK_RESOLUTION_SHARE * span:
+        return None
+    rate = float(f"{(len(clock) - 1) / span:.4g}")
+    log.info("fps = %g from the stills' clock: %d shot over %.6g s (EXIF)", rate, len(clock), span)
+    return rate
 
 
 def _first_frame(source: FrameDirectory | VideoFrames) -> np.ndarray:
