@@ -3,8 +3,8 @@
 A lab's first recording needs an experiment.json (docs/formats.md) before ``granseg analyze``
 can read it. :func:`init_experiment` writes one beside the frames (or the video) from what is
 known: the materials (densities from the model's table), c0 and the masses, the frame rate
-(a video's own; stills' from their camera's clock, :func:`clock_rate`), the camera model from ``granseg calibrate-camera``'s JSON, and the window.
-Fields it cannot know are left ``null`` and listed, and every field is explained in the
+(a video's own; stills' from their camera's clock, :func:`clock_rate`), the camera model from
+``granseg calibrate-camera``'s JSON, and the window. Fields it cannot know are left ``null`` and listed, and every field is explained in the
 file's ``_help`` object (the reader ignores keys starting with ``_``).
 
 The window is read off a preview: :func:`window_preview` draws the first frame, undistorted

@@ -311,8 +311,8 @@ class FrameTimes:
     None: frames that tell no times, not checked. seconds: each frame's filming time since the
     first, from the stamps, where they stray by more than quality.FRAME_TIMES_SHARE and can be
     read as filming times (None: frame k is k / fps after the first, exactly or within that
-    share); note: why uneven stamps were not read, or that they were, and warn whether to say so as
-    a warning (stamps not read; a camera's clock that disagrees with the fps given) or for the record.
+    share); note: why uneven stamps were not read, or that they were; warn: whether the note is a
+    warning (stamps not read; a camera's clock that disagrees with the fps given), not a record.
     """
 
     uneven: float | None = None
@@ -388,7 +388,7 @@ class Detected:
 
     spheres: per frame, FrameSpheres (centres in undistorted px) or None for a bad frame;
     names: the frames' names; fps [1/s]; bad_frames: (name, problem) of the frames left out;
-    times: when the frames were filmed, as far as a video's own stamps tell (FrameTimes).
+    times: when the frames were filmed, as far as their own stamps tell (FrameTimes).
     """
 
     experiment: Experiment
@@ -982,7 +982,7 @@ def _level_classes(spheres: list[FrameSpheres | None], exp: Experiment) -> tuple
 def _assess(result: Analysis, shift: tuple[float, int] = (0.0, 0), reduce: int = 1,
             times: FrameTimes | None = None) -> Quality:
     """The quality record of ``result`` (analysed in frames reduced ``reduce`` times; ``times``: when
-    a video's frames were filmed, and whether the map's times come from their stamps)."""
+    the frames were filmed, and whether the map's times come from their own stamps)."""
     good = [s for s in result.spheres if s is not None]
     first = good[0]
     learned = result.classes is not None

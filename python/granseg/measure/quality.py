@@ -123,10 +123,10 @@ VACANCY_SHARE = 0.05
 WALL_LINE_BAND = (0.3, 1.2)
 WALL_LINE_QUANTILE = 20
 WALL_LINE_SLACK = 0.1
-# A video's frames are taken as filmed at an even rate: the map's time of frame k is k / fps.
-# Where the stream's own time stamps stray from a straight line by more than this share of the
-# run's length, the map's times are the stamps instead (pipeline.frame_times), or, where the
-# stamps cannot be read as filming times, off by as much. A round rule, not fitted to any run: one
+# Frames are taken as filmed at an even rate: the map's time of frame k is k / fps. Where a
+# video's own time stamps stray from a straight line (or stills' camera clock from one every
+# 1 / fps) by more than this share of the run's length, the map's times are the stamps instead
+# (pipeline.frame_times), or, where they cannot be read as filming times, off by as much. A round rule, not fitted to any run: one
 # frame dropped in an hour at 30 fps strays by 5e-6; a phone slowing from 30 to 20 frames/s for
 # one minute of ten by 0.016, ten seconds at worst; the test's phone, slowing to 10 frames/s for
 # the second half, by 0.12 (tests/test_measure_inputs.py).
@@ -275,12 +275,15 @@ ADVICE = {
                            "not take the lens's distortion off. Give camera_matrix and dist_coeffs from granseg "
                            "calibrate-camera (a checkerboard filmed with the same camera and settings); without "
                            "them analyze takes a pinhole without distortion. Mend this before the window's lines",
-    "frame_times": "the video was not filmed at an even rate (a phone's variable frame rate), and its own time "
-                   "stamps could not be read as the times it was filmed (they do not increase, or it plays far "
-                   "faster or slower than the fps given: a time-lapse or a high-speed recording; the log says "
-                   "which), so the map's times count frames (frame number / fps) and are off by this share of "
-                   "the run: re-encode it at a constant rate (ffmpeg -i IN.mp4 -fps_mode cfr -r 30 OUT.mp4 "
-                   "repeats or drops frames so that frame k is the one filmed at k / 30 s) and analyse that",
+    "frame_times": "the frames were not filmed at an even rate, and their own times could not be read as the "
+                   "times they were filmed, so the map's times count frames (frame number / fps) and are off "
+                   "by this share of the run; the log says why. A video (a phone's variable frame rate) whose "
+                   "stamps do not increase, or that plays far faster or slower than the fps given (a time-lapse "
+                   "or a high-speed recording): re-encode it at a constant rate (ffmpeg -i IN.mp4 -fps_mode "
+                   "cfr -r 30 OUT.mp4 repeats or drops frames so that frame k is the one filmed at k / 30 s) "
+                   "and analyse that. Stills whose camera clock runs backwards in name order (file numbers "
+                   "rolled over from 9999 to 0001): rename them in the order shot; whose clock gives two "
+                   "stills one time: check fps",
 }
 
 
