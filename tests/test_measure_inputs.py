@@ -390,6 +390,22 @@ def test_single_bad_frame_becomes_nan_row(frames, damage, message):
     assert [name for name, _ in a.bad_frames] == ["frame_0002.png"]
 
 
+def test_frames_numbered_without_leading_zeros_are_refused_naming_two(tmp_path, capsys):
+    """frame_10.png sorts before frame_2.png as text, and text order is the frames' time order: a
+    folder numbered so is refused before any frame is read, by analyze and by the command line."""
+    d = tmp_path / "run"
+    d.mkdir()
+    for i in range(1, 12):
+        cv2.imwrite(str(d / f"frame_{i}.png"), np.zeros((8, 8, 3), np.uint8))
+    with pytest.raises(ValueError, match=r"frame_11.png before frame_2.png.*leading zeros"):
+        analyze(d, save=False, progress=False)
+    assert main(["analyze", str(d)]) == 2 and "leading zeros" in capsys.readouterr().err
+    for i in range(1, 12):
+        (d / f"frame_{i}.png").rename(d / f"frame_{i:02d}.png")
+    with pytest.raises(FileNotFoundError, match="experiment.json"):  # past the names, to the next thing missing
+        analyze(d, save=False, progress=False)
+
+
 def test_frame_without_spheres_is_named(frames):
     p = sorted(frames.glob("*.png"))[1]
     cv2.imwrite(str(p), np.full((480, 400, 3), 90, np.uint8))

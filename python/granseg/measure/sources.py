@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import itertools
 import os
+import re
 import time
 from collections.abc import Callable, Iterator
 from concurrent.futures import ThreadPoolExecutor
@@ -37,6 +39,7 @@ class FrameDirectory:
         if not self.files:
             raise ValueError(f"{directory}: no PNG or JPEG frames in the directory")
         self.names = [p.name for p in self.files]
+        _check_name_order(directory, self.names)
         self.fps: float | None = None
         self.first, self.every = 0, 1
 
@@ -83,6 +86,23 @@ class FrameDirectory:
             return self.read(i, reduce, size)
         except BadFrame:
             return None
+
+
+def _check_name_order(directory: Path, names: list[str]) -> None:
+    """Refuse frames whose names, sorted as text (the frames' time order, DATA.md), put two names
+    that differ only in their numbers out of those numbers' order: frame_10.png sorts before
+    frame_2.png, so a script that wrote frame_{i}.png without leading zeros would give a map whose
+    rows are shuffled in time. Names that differ in their text too are left to their text order."""
+    def split(name: str) -> tuple[list[str], list[int]]:
+        parts = re.split(r"([0-9]+)", name)
+        return parts[0::2], [int(n) for n in parts[1::2]]
+
+    for a, b in itertools.pairwise(names):
+        (text_a, numbers_a), (text_b, numbers_b) = split(a), split(b)
+        if text_a == text_b and numbers_b < numbers_a:
+            raise ValueError(f"{directory}: frame names sort as text, not by their numbers ({a} before {b}), "
+                             f"and their text order is taken as time order: number them with leading zeros "
+                             f"(frame_0002.png) so that both orders agree")
 
 
 # JPEG decoded at a half, a quarter or an eighth of its size by libjpeg (its scaled inverse DCT)
