@@ -406,6 +406,17 @@ def test_frames_numbered_without_leading_zeros_are_refused_naming_two(tmp_path, 
         analyze(d, save=False, progress=False)
 
 
+def test_hidden_files_in_a_frames_folder_are_not_frames(frames):
+    """macOS leaves "._NAME.png" (its metadata, not an image) beside every file copied to an exFAT
+    card; sorted first, they would be bad frames that shift every row's time."""
+    whole = analyze(frames, save=False, progress=False)
+    for p in sorted(frames.glob("*.png")):
+        (frames / f"._{p.name}").write_bytes(b"\x00\x05\x16\x07" + bytes(4092))  # AppleDouble's magic
+    again = analyze(frames, save=False, progress=False)
+    assert again.bad_frames == [] and again.frame_names == whole.frame_names
+    assert np.array_equal(again.t, whole.t) and np.array_equal(again.n, whole.n)
+
+
 def test_frame_without_spheres_is_named(frames):
     p = sorted(frames.glob("*.png"))[1]
     cv2.imwrite(str(p), np.full((480, 400, 3), 90, np.uint8))

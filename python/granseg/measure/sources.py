@@ -33,8 +33,10 @@ class FrameDirectory:
         if not directory.is_dir():
             raise FileNotFoundError(f"{directory}: frames directory not found")
         self.directory = directory
+        # hidden files are not frames: macOS writes "._NAME.png" beside every file it copies to a
+        # drive without its own metadata (an exFAT card), which would sort first and shift every row
         self.all_files = sorted(p for p in directory.iterdir()
-                                if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES)
+                                if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES and not p.name.startswith("."))
         self.files = self.all_files
         if not self.files:
             raise ValueError(f"{directory}: no PNG or JPEG frames in the directory")
