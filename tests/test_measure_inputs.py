@@ -325,9 +325,10 @@ def test_stills_are_timed_by_their_camera_clock_where_it_disagrees(tmp_path, cap
     assert check.passed and even.quality.figures["frame_times_from_stamps"] is False
     np.testing.assert_allclose(np.diff(even.t), 2.0)
     with caplog.at_level(logging.WARNING):
-        slip = analyze(_shot_stills(d, tmp_path / "slip", every_2s, 0.2), save=False, progress=False)
+        slip = analyze(_shot_stills(d, tmp_path / "slip", every_2s, 0.2), out=tmp_path / "slip.npz", progress=False)
     assert "check fps" in caplog.text and slip.quality.ok and slip.quality.figures["frame_times_from_stamps"]
     np.testing.assert_allclose(slip.t - slip.t[0], every_2s)
+    assert float(np.load(tmp_path / "slip.npz")["fps"]) == pytest.approx(0.5)  # the map's rate is the clock's
     assert np.array_equal(slip.n, even.n)
     names = [f"IMG_{9998 + k:04d}.JPG" if k < 2 else f"IMG_{k - 1:04d}.JPG" for k in range(8)]
     caplog.clear()

@@ -276,7 +276,7 @@ def analyze(
                       + "; ".join(f"{c.name} {c.value:.3f} (limit {c.rule} {c.limit:.3f})"
                                   for c in result.quality.failed), QualityWarning, stacklevel=2)
     if save:
-        result.out = _save(result, out_path, force, fps)
+        result.out = _save(result, out_path, force, fps if times.seconds is None else times.mean_rate())
     if detections is not None:
         result.detections = write_detections(detections, result, force=force)
     if preview is None and not result.quality.ok and save:
@@ -319,6 +319,10 @@ class FrameTimes:
     seconds: np.ndarray | None = None
     note: str | None = None
     warn: bool = False
+
+    def mean_rate(self) -> float:
+        """Frames per second of filming over the frames read, by their own times (``seconds``)."""
+        return (len(self.seconds) - 1) / float(self.seconds[-1] - self.seconds[0])
 
     def row_seconds(self, n: int, fps: float) -> np.ndarray:
         """Each of ``n`` rows' time since the first [s]: k / fps, or the stamps where they are read
