@@ -126,10 +126,10 @@ WALL_LINE_SLACK = 0.1
 # Frames are taken as filmed at an even rate: the map's time of frame k is k / fps. Where a
 # video's own time stamps stray from a straight line (or stills' camera clock from one every
 # 1 / fps) by more than this share of the run's length, the map's times are the stamps instead
-# (pipeline.frame_times), or, where they cannot be read as filming times, off by as much. A round rule, not fitted to any run: one
-# frame dropped in an hour at 30 fps strays by 5e-6; a phone slowing from 30 to 20 frames/s for
-# one minute of ten by 0.016, ten seconds at worst; the test's phone, slowing to 10 frames/s for
-# the second half, by 0.12 (tests/test_measure_inputs.py).
+# (pipeline.frame_times), or, where they cannot be read as filming times, off by as much. A round
+# rule, not fitted to any run: one frame dropped in an hour at 30 fps strays by 5e-6; a phone
+# slowing from 30 to 20 frames/s for one minute of ten by 0.016, ten seconds at worst; the test's
+# phone, slowing to 10 frames/s for the second half, by 0.12 (tests/test_measure_inputs.py).
 FRAME_TIMES_SHARE = 0.01
 # Spheres at a wall touch their neighbours, so the median distance from a
 # sphere found to the nearest other one is about a diameter: with
