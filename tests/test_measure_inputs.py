@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import logging
+import re
 import shutil
 import warnings
 
@@ -405,6 +406,32 @@ def test_frames_numbered_without_leading_zeros_are_refused_naming_two(tmp_path, 
         (d / f"frame_{i}.png").rename(d / f"frame_{i:02d}.png")
     with pytest.raises(FileNotFoundError, match="experiment.json"):  # past the names, to the next thing missing
         analyze(d, save=False, progress=False)
+
+
+@pytest.mark.parametrize("stray", ["frame_0002 (1).png", "frame_0002 copy.png", "background.png"])
+def test_an_image_not_named_like_the_frames_is_refused_naming_it(frames, stray, capsys):
+    """A copy a file manager made of one frame, or an image that is not a frame, would sort among
+    the frames and shift every later row's time by a frame: refused before any frame is read, by
+    name, by analyze and by the command line."""
+    shutil.copy(frames / "frame_0002.png", frames / stray)
+    with pytest.raises(ValueError, match=rf"{re.escape(stray)} is not named like the other 4 frames "
+                                         rf"\(frame_#.png, where # is a number\).*move it out"):
+        analyze(frames, save=False, progress=False)
+    assert main(["analyze", str(frames), "--no-progress"]) == 2 and stray in capsys.readouterr().err
+    (frames / stray).unlink()
+    assert analyze(frames, save=False, progress=False).bad_frames == []
+
+
+def test_frames_without_a_numbering_keep_their_text_order(tmp_path):
+    """Names that share no naming (a time-lapse tool's letters) have no numbering to break; a folder
+    of them is read in text order, as DATA.md says."""
+    from granseg.measure.sources import FrameDirectory
+
+    for name in ["shot_a.png", "shot_b.png", "shot_c.png"]:
+        cv2.imwrite(str(tmp_path / name), np.zeros((8, 8, 3), np.uint8))
+    assert FrameDirectory(tmp_path).names == ["shot_a.png", "shot_b.png", "shot_c.png"]
+    cv2.imwrite(str(tmp_path / "shot_10.png"), np.zeros((8, 8, 3), np.uint8))  # one numbered: no naming held by two
+    assert len(FrameDirectory(tmp_path)) == 4
 
 
 def test_hidden_files_in_a_frames_folder_are_not_frames(frames):

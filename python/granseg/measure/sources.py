@@ -41,6 +41,7 @@ class FrameDirectory:
         if not self.files:
             raise ValueError(f"{directory}: no PNG or JPEG frames in the directory")
         self.names = [p.name for p in self.files]
+        _check_one_naming(directory, self.names)
         _check_name_order(directory, self.names)
         self.fps: float | None = None
         self.first, self.every = 0, 1
@@ -88,6 +89,32 @@ class FrameDirectory:
             return self.read(i, reduce, size)
         except BadFrame:
             return None
+
+
+def _naming(name: str) -> str:
+    """A frame name with each run of digits as "#": frame_0005.png -> frame_#.png."""
+    return re.sub(r"[0-9]+", "#", name)
+
+
+def _check_one_naming(directory: Path, names: list[str]) -> None:
+    """Refuse frames not all named alike: a copy a file manager made (frame_0005 (1).png,
+    "frame_0005 copy.png", "frame_0005 - Copy.png") or an image that is not a frame (background.png)
+    sorts among the frames and becomes one, and every row after it takes the next row's time. Names
+    alike are one text with numbers in the same places (frame_#.png); the fewest-held namings are
+    named, with how many frames follow the most-held one. Names that share no naming (shot_a.png,
+    shot_b.png) have no numbering to break and are left to their text order."""
+    namings: dict[str, list[str]] = {}
+    for name in names:
+        namings.setdefault(_naming(name), []).append(name)
+    common = max(namings, key=lambda k: (len(namings[k]), k))
+    if len(namings) < 2 or len(namings[common]) < 2:  # one naming, or names that carry no numbering
+        return
+    odd = sorted(n for k, held in namings.items() if k != common for n in held)
+    shown = ", ".join(odd[:3]) + (f" and {len(odd) - 3} more" if len(odd) > 3 else "")
+    raise ValueError(f"{directory}: {shown} {'is' if len(odd) == 1 else 'are'} not named like the other "
+                     f"{len(namings[common])} frames ({common}, where # is a number): a copy, or an image that is not "
+                     f"a frame? Every image in the folder is taken as a frame in name order, so move "
+                     f"{'it' if len(odd) == 1 else 'them'} out (or rename the frames alike)")
 
 
 def _check_name_order(directory: Path, names: list[str]) -> None:
