@@ -155,10 +155,8 @@ def test_frames_filmed_before_the_plate_started_are_left_out(tmp_path, capsys):
     early = tmp_path / "early"
     early.mkdir()
     pngs = sorted(d.glob("*.png"))
-    for k in range(3):  # sort before the run's own names
-        shutil.copy(pngs[0], early / f"0rest_{k}.png")
-    for p in pngs:
-        shutil.copy(p, early / p.name)
+    for k, p in enumerate([pngs[0]] * 3 + pngs):  # three frames of the bed at rest, then the run, numbered on
+        shutil.copy(p, early / f"frame_{k:04d}.png")
     (early / "experiment.json").write_text(json.dumps({**exp, "t0": -2.5 / fps}))
     video = _as_video(early, tmp_path / "vid" / "run.avi")
     for source in (early, video):
