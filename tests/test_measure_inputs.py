@@ -338,6 +338,33 @@ def test_stills_are_timed_by_their_camera_clock_where_it_disagrees(tmp_path, cap
     assert not check.passed and check.value > 3 * quality.FRAME_TIMES_SHARE
 
 
+def test_stills_timed_by_their_clock_are_cut_at_the_plate_start_by_it(tmp_path):
+    """Stills shot every 2 s with fps typed as 0.2 are timed by their camera's clock; a negative
+    t0 cuts them by that clock too: a run whose camera took two stills of the bed at rest first,
+    t0 = -3 s, leaves out those two (shot at 0 and 2 s; fps would leave out one) and gives the
+    run's map, its rows 1 s after the plate started. A plate start after the last still by the
+    clock (18 s) is refused, though fps would put it in time."""
+    d = tmp_path / "run"
+    render_frames(_map(8), seed=5, out_dir=d, **SMALL)
+    whole = analyze(_shot_stills(d, tmp_path / "slip", np.arange(8) * 2.0, 0.2), save=False, progress=False)
+    rest = tmp_path / "rest"
+    rest.mkdir()
+    pngs = sorted(d.glob("*.png"))
+    for k, p in enumerate([pngs[0]] * 2 + pngs):
+        shutil.copy(p, rest / f"frame_{k:04d}.png")
+    exp = json.loads((d / "experiment.json").read_text())
+    (rest / "experiment.json").write_text(json.dumps(exp))
+    early = _shot_stills(rest, tmp_path / "early", np.arange(10) * 2.0, 0.2)
+    (early / "experiment.json").write_text(json.dumps({**exp, "fps": 0.2, "t0": -3.0}))
+    late = analyze(early, save=False, progress=False)
+    assert late.first == 2 and late.quality.figures["frames_first"] == 2
+    np.testing.assert_allclose(late.t, whole.t - whole.t[0] + 1.0)
+    assert np.array_equal(late.n, whole.n) and np.array_equal(late.n_heavy, whole.n_heavy)
+    (early / "experiment.json").write_text(json.dumps({**exp, "fps": 0.2, "t0": -19.0}))
+    with pytest.raises(ValueError, match=r"field 't0': -19 s .* after the recording's last frame \(shot 18 s after"):
+        analyze(early, save=False, progress=False)
+
+
 def test_a_video_whose_header_only_estimates_its_frames_has_the_frames_it_holds(tmp_path, caplog):
     """Matroska keeps no frame count: OpenCV announces its length times its nominal rate, 16 frames
     for the 8 of a phone slowing from 30 to 10 frames/s halfway. The map has the 8 frames read, none

@@ -534,9 +534,19 @@ def from_plate_start(exp: Experiment, fps: float, source: FrameDirectory | Video
     """The recording from the first frame filmed once the plate moved: ``exp`` with that frame's
     ``t0`` (>= 0) and its index. A negative ``t0`` says the camera was started first; the frames
     before (``-t0 x fps`` of them, the bed at rest) tell nothing of the segregation and are left
-    out. ValueError naming ``t0`` where the plate starts after the recording's last frame."""
+    out. ValueError naming ``t0`` where the plate starts after the recording's last frame.
+
+    Stills whose camera clock strays from ``fps`` (the map is then timed by the clock,
+    :func:`frame_times`) are cut by the clock too: with fps typed as 0.2 for stills shot every
+    2 s, t0 = -4 s leaves out two stills, not one."""
     if exp.t0 >= 0:
         return exp, 0
+    if isinstance(source, FrameDirectory) and (clock := _shot_times(source, fps).seconds) is not None:
+        if -exp.t0 > clock[-1]:
+            raise ValueError(f"{exp.path}: field 't0': {exp.t0:g} s puts the plate's start after the recording's "
+                             f"last frame (shot {clock[-1]:g} s after the first, by the stills' own clock)")
+        first = int(np.searchsorted(clock, -exp.t0 - 1e-9))  # the first still shot once the plate moved
+        return replace(exp, t0=max(0.0, exp.t0 + float(clock[first]))), first
     n = len(source)  # 0 for a video whose header does not tell
     before = -exp.t0 * fps  # frames filmed before the plate moved, as a real number
     if not np.isfinite(before) or (n and before > n - 1):
