@@ -179,6 +179,10 @@ def fit_outlines(smooth: np.ndarray, centres: np.ndarray, radii: np.ndarray, d: 
     band = RIM_SEARCH_PX + RIM_SEARCH_SIZE * radius  # how far from the expected radius the rim may lie
     steps = _reach(np.arange(0.65 * r_max, 1.4 * r_max, 0.5), radius, band, window)
     mid = steps[1:-1]
+    # -inf where a drop lies outside the band about the sphere's radius (rays share it): added, not
+    # masked with np.where, each iteration
+    outside = np.where(np.abs(mid[None, :] - radius[:, None]) <= band[:, None], 0.0, -np.inf)[:, None, :]
+    outside = outside.astype(np.float32)
     for _ in range(iterations):
         px = c[:, 0, None, None] + steps[None, None, :] * ray[None, :, 0, None]
         py = c[:, 1, None, None] + steps[None, None, :] * ray[None, :, 1, None]
@@ -187,8 +191,7 @@ def fit_outlines(smooth: np.ndarray, centres: np.ndarray, radii: np.ndarray, d: 
         drop = (prof[:, :-2] - prof[:, 2:]) / 2.0
         sharp = drop - cv2.filter2D(drop, -1, kernel[None, :], borderType=cv2.BORDER_REPLICATE)
         sharp = sharp.reshape(m, k, s - 2)
-        allowed = np.abs(mid[None, None, :] - radius[:, None, None]) <= band[:, None, None]
-        sharp = np.where(allowed, sharp, -np.inf)
+        sharp += outside
         best = np.argmax(sharp, axis=2)
         peak = np.take_along_axis(sharp, best[..., None], 2)[..., 0]
         lo = np.take_along_axis(sharp, np.clip(best - 1, 0, s - 3)[..., None], 2)[..., 0]
