@@ -338,15 +338,21 @@ def test_stills_are_timed_by_their_camera_clock_where_it_disagrees(tmp_path, cap
     assert not check.passed and check.value > 3 * quality.FRAME_TIMES_SHARE
 
 
-def test_stills_timed_by_their_clock_are_cut_at_the_plate_start_by_it(tmp_path):
-    """Stills shot every 2 s with fps typed as 0.2 are timed by their camera's clock; a negative
+def test_stills_timed_by_their_clock_are_cut_and_thinned_by_it(tmp_path):
+    """Stills shot every 2 s with fps typed as 0.2 are timed by their camera's clock, and seconds
+    given become frames by it: every_seconds = 4 analyses every second still (fps would say
+    every one) and smooth_seconds = 8 averages three rows (fps: one). A negative
     t0 cuts them by that clock too: a run whose camera took two stills of the bed at rest first,
     t0 = -3 s, leaves out those two (shot at 0 and 2 s; fps would leave out one) and gives the
     run's map, its rows 1 s after the plate started. A plate start after the last still by the
     clock (18 s) is refused, though fps would put it in time."""
     d = tmp_path / "run"
     render_frames(_map(8), seed=5, out_dir=d, **SMALL)
-    whole = analyze(_shot_stills(d, tmp_path / "slip", np.arange(8) * 2.0, 0.2), save=False, progress=False)
+    slip = _shot_stills(d, tmp_path / "slip", np.arange(8) * 2.0, 0.2)
+    whole = analyze(slip, save=False, progress=False)
+    sparse = analyze(slip, every_seconds=4.0, smooth_seconds=8.0, save=False, progress=False)
+    assert sparse.every == 2 and sparse.smoothing_frames == 3 and np.array_equal(sparse.n, whole.n[::2])
+    np.testing.assert_allclose(np.diff(sparse.t), 4.0)
     rest = tmp_path / "rest"
     rest.mkdir()
     pngs = sorted(d.glob("*.png"))

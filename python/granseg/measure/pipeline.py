@@ -198,6 +198,8 @@ def analyze(
         changes over minutes.
     every_seconds : the same as a time [s]: ``every`` is the whole number of
         frames nearest to ``every_seconds * fps`` (at least 1). Overrides ``every``.
+        Stills timed by their own clock (it strays from ``fps``, :func:`frame_times`)
+        turn seconds into frames at the clock's mean rate, here and in ``smooth_seconds``.
     preview : directory for annotated preview PNGs of ``preview_count`` frames
         spread over the run (first and last included).
     force : replace existing output files.
@@ -240,14 +242,15 @@ def analyze(
     fps = _frame_rate(exp, source)
     exp, first = from_plate_start(exp, fps, source)
     seen = _reduced_experiment(exp, reduce)
+    rate = filming_rate(source, fps) if every_seconds is not None or smooth_seconds is not None else fps
     if every_seconds is not None:
-        every = frames_every(every_seconds, fps)
+        every = frames_every(every_seconds, rate)
     source.keep(int(every), first)
     filmed = fps  # per frame of the recording
     fps /= int(every)  # the map's rows per second
     _check_times(exp, fps, len(source))
     if smooth_seconds is not None:
-        smooth = frames_for_seconds(smooth_seconds, fps)
+        smooth = frames_for_seconds(smooth_seconds, rate / int(every))
     out_path = map_path(out, exp.name, exp_path.parent)
     if save:
         check_creatable(out_path.parent)
@@ -355,6 +358,18 @@ def frame_times(source: FrameDirectory | VideoFrames, fps: float) -> FrameTimes:
                                               f"filmed (a time-lapse or high-speed recording), so its stamps count "
                                               f"playback: times taken as frames at {fps:g} fps", True)
     return FrameTimes(uneven, stamps - stamps[0], why + "times from the stamps")
+
+
+def filming_rate(source: FrameDirectory | VideoFrames, fps: float) -> float:
+    """Frames filmed per second, for turning seconds into frames (``every_seconds``,
+    ``smooth_seconds``): ``fps``, or, for stills whose own clock strays from it and times the map
+    (:func:`frame_times`), the clock's mean rate over the folder. A video's stamps are known only
+    once it is read: its ``fps``."""
+    if isinstance(source, FrameDirectory):
+        clock = _shot_times(source, fps)
+        if clock.seconds is not None:
+            return clock.mean_rate()
+    return fps
 
 
 def _shot_times(source: FrameDirectory, fps: float) -> FrameTimes:
