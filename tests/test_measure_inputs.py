@@ -245,6 +245,40 @@ def test_a_video_filmed_at_an_uneven_rate_has_the_times_of_its_stamps(tmp_path, 
     assert "frame_times" not in {c.name for c in analyze(d, save=False, progress=False).quality.checks}
 
 
+def test_a_video_started_before_the_plate_at_an_uneven_rate_is_timed_from_the_plate_by_its_stamps(tmp_path, caplog):
+    """A negative t0 cuts a video's frames before the plate's start by counting them at fps, before
+    any stamp is read. A phone that filmed its wait at 10 frames/s, then 30 (fps 30), cut at
+    t0 = -0.1 s: the three frames counted are 0.3 s of filming, so the map's first row is 0.2 s
+    after the plate started and every row is t0 plus its own stamp (it read 0 before). Where the
+    stamps put the first frame kept before the plate started (30 frames/s filmed, 20 given), the
+    times stay counted at fps, and frame_times fails and says why (a map's times are >= 0)."""
+    c = np.zeros((12, 15))
+    c[:, 8:] = 1.0  # stratified throughout: every frame kept shows the start's classes
+    d = tmp_path / "run"
+    render_frames(c, seed=5, out_dir=d, **SMALL)
+
+    def started_before(video, t0):
+        exp = video.parent / "experiment.json"
+        exp.write_text(json.dumps({**json.loads(exp.read_text()), "t0": t0}))
+        return video
+
+    slow_then_fast = np.r_[np.arange(5) * 0.1, 0.4 + np.arange(1, 8) / 30]
+    video = started_before(_timed_video(d, tmp_path / "slow" / "run.mkv", slow_then_fast, fps=30), -0.1)
+    with caplog.at_level(logging.INFO):
+        slow = analyze(video, save=False, progress=False)
+    np.testing.assert_allclose(slow.t, -0.1 + slow_then_fast[3:], atol=1e-3)
+    assert slow.first == 3 and slow.quality.ok and "by the video's stamps" in caplog.text
+    assert slow.experiment.t0 == pytest.approx(0.2, abs=1e-3)
+    fast_then_slow = np.r_[np.arange(6) / 30, 5 / 30 + np.arange(1, 7) * 0.1]
+    video = started_before(_timed_video(d, tmp_path / "fast" / "run.mkv", fast_then_slow, fps=20), -0.1)
+    caplog.clear()
+    with pytest.warns(QualityWarning, match="frame_times"), caplog.at_level(logging.WARNING):
+        fast = analyze(video, save=False, progress=False)
+    assert "0.033 s before the plate started" in caplog.text and fast.first == 2
+    assert [ch.name for ch in fast.quality.failed] == ["frame_times"]
+    np.testing.assert_allclose(fast.t, np.arange(10) / 20)  # from t0 = -0.1 + 2 / 20, at the 20 fps given
+
+
 def test_stamps_are_read_as_times_only_where_they_can_be(tmp_path):
     """frame_times reads a video's uneven stamps as filming times, but not stamps that do not
     increase, nor those of a video that plays far faster or slower than the fps given (a

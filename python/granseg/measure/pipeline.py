@@ -240,6 +240,7 @@ def analyze(
     exp = load_experiment(exp_path)
     reduce = analysis_reduction(exp.particle_diameter_px) if reduce is None else int(reduce)
     fps = _frame_rate(exp, source)
+    given_t0 = exp.t0
     exp, first = from_plate_start(exp, fps, source)
     seen = _reduced_experiment(exp, reduce)
     rate = filming_rate(source, fps) if every_seconds is not None or smooth_seconds is not None else fps
@@ -268,6 +269,8 @@ def analyze(
     classes = _classify(spheres, seen, crops, spots, ends_unmixed)
     shift = _level_classes(spheres, seen)
     times = frame_times(source, filmed)
+    exp, times = plate_start_by_stamps(exp, given_t0, first, source, times)
+    seen = replace(seen, t0=exp.t0)
     reduced = _assemble(spheres, seen, times.row_seconds(len(spheres), fps), smooth, names, bad)
     reduced.classes, reduced.first, reduced.every = classes, first, int(every)
     reduced.quality = _assess(reduced, shift, reduce, times)
@@ -358,6 +361,29 @@ def frame_times(source: FrameDirectory | VideoFrames, fps: float) -> FrameTimes:
                                               f"filmed (a time-lapse or high-speed recording), so its stamps count "
                                               f"playback: times taken as frames at {fps:g} fps", True)
     return FrameTimes(uneven, stamps - stamps[0], why + "times from the stamps")
+
+
+def plate_start_by_stamps(exp: Experiment, given_t0: float, first: int, source: FrameDirectory | VideoFrames,
+                          times: FrameTimes) -> tuple[Experiment, FrameTimes]:
+    """A video cut at the plate's start (a negative ``given_t0``, :func:`from_plate_start`) counts
+    the frames before it at ``fps``, for its stamps are read only with the frames kept. Where those
+    stamps time the map (``times.seconds``, an uneven rate), the first frame kept was filmed
+    ``given_t0`` plus its own stamp after the plate started, not ``first / fps``: a phone slowing
+    from 30 to 20 frames/s in a 20 s wait puts it 5 s later. ``exp`` with that ``t0``; where the
+    stamps put it before the plate started (the ``fps`` given is below the rate filmed), the map
+    keeps the frames' count at ``fps`` and ``times`` says why, a warning and a failed
+    ``frame_times`` check (a map's times are >= 0)."""
+    if not first or times.seconds is None or not isinstance(source, VideoFrames) or not source.times:
+        return exp, times
+    t0 = given_t0 + float(source.times[0])  # the stream's own time of the first frame kept
+    if t0 >= 0:
+        log.info("%s: the plate started %.3g s before the first frame kept, by the video's stamps (%.3g s by "
+                 "its count of frames at the fps given)", exp.path.parent, t0, exp.t0)
+        return replace(exp, t0=t0), times
+    note = (f"the video's stamps put its first frame kept {-t0:.3g} s before the plate started (t0 {given_t0:g} s "
+            f"counted at the fps given), so the map's times are its frames counted at that fps: are t0 and fps "
+            f"right?")
+    return exp, replace(times, seconds=None, note=note, warn=True)
 
 
 def filming_rate(source: FrameDirectory | VideoFrames, fps: float) -> float:
