@@ -368,8 +368,8 @@ def plate_start_by_stamps(exp: Experiment, given_t0: float, first: int, source: 
     """A video cut at the plate's start (a negative ``given_t0``, :func:`from_plate_start`) counts
     the frames before it at ``fps``, for its stamps are read only with the frames kept. Where those
     stamps time the map (``times.seconds``, an uneven rate), the first frame kept was filmed
-    ``given_t0`` plus its own stamp after the plate started, not ``first / fps``: a phone slowing
-    from 30 to 20 frames/s in a 20 s wait puts it 5 s later. ``exp`` with that ``t0``; where the
+    ``given_t0`` plus its own stamp after the plate started, not ``first / fps``: a phone that
+    filmed a 20 s wait at 20 frames/s, 30 given, puts it 10 s later. ``exp`` with that ``t0``; where the
     stamps put it before the plate started (the ``fps`` given is below the rate filmed), the map
     keeps the frames' count at ``fps`` and ``times`` says why, a warning and a failed
     ``frame_times`` check (a map's times are >= 0)."""
