@@ -153,13 +153,18 @@ def _video_of(frames_dir, video, kept, fps):
 
 def test_a_video_filmed_at_an_uneven_rate_gives_speeds_from_its_time_stamps(tmp_path):
     """A camera halving its rate halfway (100 frames/s for 40 frames, then 50; the video's stamps
-    say so, its header says 100): the layers' speeds are those of the same bed filmed evenly,
-    within 3 % wherever they exceed 1 cm/s; taken at the header's rate they came out 7-38 % fast.
-    A note says the stamps were read."""
+    say so, its header says 100): the layers' speeds are those of the same bed filmed evenly
+    wherever they exceed 1 cm/s, each within two of its standard errors and their mean ratio within
+    2 %; taken at the header's rate, their mean ratio is 1.26 (the stamps' times replaced by the
+    frames counted at 100 frames/s, on the AVX-512 machine). (A layer's own error is
+    up to a tenth of its speed, the fastest one's with half the frames: 3 % on each layer held on
+    the machine the test was written on and not on an AVX-512 one, whose OpenCV kernels render
+    another packing, 4.7 % off, 0.4 standard errors.) A note says the stamps were read."""
     r = render_highspeed(tmp_path / "even", fps=100.0, n_frames=80, seed=9)
     uneven = _video_of(tmp_path / "even", tmp_path / "uneven" / "run.mov", [*range(40), *range(40, 80, 2)], 100.0)
     (_, (even,)), (prof, (rec,)) = _measure(r.source), _measure(uneven)
     fast = np.isfinite(rec.v) & (even.v > 0.01)
     assert fast.sum() >= 6
-    np.testing.assert_allclose(rec.v[fast], even.v[fast], rtol=0.03)
+    assert abs(np.mean(rec.v[fast] / even.v[fast]) - 1) <= 0.02
+    assert np.all(np.abs(rec.v[fast] - even.v[fast]) <= 2 * np.hypot(rec.v_err[fast], even.v_err[fast]))
     assert any("time stamps" in note for note in prof.notes)
