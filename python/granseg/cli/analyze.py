@@ -15,7 +15,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
         "analyze", help="measure the concentration map from frames or a video",
         description="Undistort, detect and classify the spheres in every frame and write the "
-        "heavy-concentration map (docs/formats.md). PATH is a directory of PNG/JPEG frames holding "
+        "heavy-concentration map (docs/formats.md). PATH is a directory of PNG/JPEG/TIFF frames holding "
         "experiment.json, or a video file with experiment.json beside it.")
     p.add_argument("path", metavar="PATH", help="frames directory or video file")
     p.add_argument("--out", metavar="FILE|DIR/",

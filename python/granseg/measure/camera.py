@@ -12,13 +12,13 @@ from typing import Any
 import cv2
 import numpy as np
 
-from granseg.errors import CameraWarning, FitError
+from granseg.errors import BadFrame, CameraWarning, FitError
+from granseg.measure.stills import IMAGE_SUFFIXES, decode_still
 
 __all__ = ["CameraWarning", "Undistorter", "calibrate_camera", "check_pattern", "checkerboard_dir",
            "find_checkerboard", "reduce_frame"]
 
 log = logging.getLogger(__name__)
-IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp")
 
 
 # How many frames wide and high a crop may be. Undistorted, what the sensor
@@ -180,15 +180,15 @@ def calibrate_camera(directory: str | os.PathLike, pattern: tuple[int, int] = (9
     d = checkerboard_dir(directory)
     files = sorted(p for p in d.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
     if not files:
-        raise ValueError(f"{d}: no checkerboard images (PNG/JPEG) in the directory")
+        raise ValueError(f"{d}: no checkerboard images (PNG, JPEG, TIFF or BMP) in the directory")
     cols, rows = pattern
     grid = np.zeros((cols * rows, 3), np.float32)
     grid[:, :2] = np.mgrid[0:cols, 0:rows].T.reshape(-1, 2) * square
     used, skipped, img, size, found = [], [], [], None, 0
     for f in files:
         try:  # decoded from memory: cv2.imread crashes on a name that is not UTF-8
-            gray = cv2.imdecode(np.frombuffer(f.read_bytes(), np.uint8), cv2.IMREAD_GRAYSCALE)
-        except (OSError, cv2.error):
+            gray = decode_still(f.read_bytes(), f.name, gray=True)  # a 16-bit board at its own depth
+        except (OSError, cv2.error, BadFrame):
             gray = None
         if gray is None:
             skipped.append(f"{f.name}: unreadable image")

@@ -178,7 +178,7 @@ def analyze(
 
     Parameters
     ----------
-    path : a directory of frames (PNG/JPEG, name order = time order) holding
+    path : a directory of frames (PNG, JPEG, TIFF or BMP, 8 or 16 bits; name order = time order) holding
         ``experiment.json``, or a video file with ``experiment.json`` beside it.
     out : map file to write (docs/formats.md ``.npz``); default ``map.npz`` beside
         ``experiment.json``. A folder (existing, or given with a trailing ``/``)

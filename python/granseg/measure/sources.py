@@ -16,14 +16,13 @@ import numpy as np
 from granseg._io import cv2_path
 from granseg.errors import BadFrame
 from granseg.measure.camera import reduce_frame
+from granseg.measure.stills import IMAGE_SUFFIXES, PNG_SIGNATURE, decode_still, run_bits, tiff_pages
 
 __all__ = ["BadFrame", "FrameDirectory", "VideoFrames", "open_frames", "IMAGE_SUFFIXES"]
 
-IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
-
 
 class FrameDirectory:
-    """Still images (PNG or JPEG) in a directory, in name order; decoded on demand (thread-safe).
+    """Still images (PNG, JPEG, TIFF or BMP) in a directory, in name order; decoded on demand (thread-safe).
 
     ``first``, ``every``: frame i is the directory's image first + i x every (:meth:`keep`; 0 and 1,
     all of them).
@@ -39,12 +38,14 @@ class FrameDirectory:
                                 if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES and not p.name.startswith("."))
         self.files = self.all_files
         if not self.files:
-            raise ValueError(f"{directory}: no PNG or JPEG frames in the directory")
+            raise ValueError(f"{directory}: no PNG, JPEG, TIFF or BMP frames in the directory")
         self.names = [p.name for p in self.files]
         _check_one_naming(directory, self.names)
         _check_name_order(directory, self.names)
+        _check_not_a_stack(self.files[0])
         self.fps: float | None = None
         self.first, self.every = 0, 1
+        self.bits = run_bits(self.files)  # 16-bit frames' depth (stills.run_bits); None: 8-bit
 
     def keep(self, every: int = 1, first: int = 0) -> None:
         """Keep every ``every``-th image from image ``first`` on, that one included; the others are
@@ -59,7 +60,7 @@ class FrameDirectory:
     def read(self, i: int, reduce: int = 1, size: tuple[int, int] | None = None) -> np.ndarray:
         """Frame ``i`` as BGR uint8, reduced ``reduce`` times (:func:`read_image`); BadFrame says what is
         wrong with its file, also when its own size (width, height) is not ``size``."""
-        return read_image(self.files[i], reduce, size)
+        return read_image(self.files[i], reduce, size, self.bits)
 
     def frames(self) -> Iterator[tuple[int, np.ndarray | None | BadFrame]]:
         """Frame indices; images are read by the workers (None here)."""
@@ -89,6 +90,20 @@ class FrameDirectory:
             return self.read(i, reduce, size)
         except BadFrame:
             return None
+
+
+def _check_not_a_stack(path: Path) -> None:
+    """A TIFF of several pages (an ImageJ or camera stack) is a whole recording in one file: refused
+    with how to save it as frames, before the run starts (its first page alone would be one row)."""
+    if path.suffix.lower() not in (".tif", ".tiff"):
+        return
+    try:
+        pages = tiff_pages(path.read_bytes(), most=1_000_000)
+    except OSError:
+        return  # reported when the frame is read
+    if pages > 1:
+        raise ValueError(f"{path}: a TIFF stack of {pages} pages; granseg reads one image per frame: save the "
+                         "stack as an image sequence (ImageJ: File > Save As > Image Sequence) or as a video")
 
 
 def _naming(name: str) -> str:
@@ -138,9 +153,11 @@ def _check_name_order(directory: Path, names: list[str]) -> None:
 _REDUCED_READ = {2: cv2.IMREAD_REDUCED_COLOR_2, 4: cv2.IMREAD_REDUCED_COLOR_4, 8: cv2.IMREAD_REDUCED_COLOR_8}
 
 
-def read_image(path: Path, reduce: int = 1, size: tuple[int, int] | None = None) -> np.ndarray:
-    """Decode one PNG/JPEG file strictly: an empty or truncated file is a BadFrame, and so is one
-    whose own size (width, height) is not ``size`` (None: any).
+def read_image(path: Path, reduce: int = 1, size: tuple[int, int] | None = None,
+               bits: int | None = None) -> np.ndarray:
+    """Decode one still strictly: an empty or truncated file is a BadFrame, and so is one whose own
+    size (width, height) is not ``size`` (None: any). 16-bit samples are ``bits`` deep
+    (:func:`granseg.measure.stills.decode_still`).
 
     Reduced ``reduce`` times (:func:`granseg.measure.camera.reduce_frame`).
     A JPEG reduced 2, 4 or 8 times is decoded at that size: libjpeg's
@@ -166,9 +183,7 @@ def read_image(path: Path, reduce: int = 1, size: tuple[int, int] | None = None)
             check_size(path.name, own, size)
             return img[:h // reduce, :w // reduce]  # the whole blocks, as reduce_frame keeps
         # otherwise (turned by its EXIF orientation, say) decoded whole below
-    img = cv2.imdecode(buffer, cv2.IMREAD_COLOR)
-    if img is None:
-        raise BadFrame(f"{path}: not a readable image")
+    img = decode_still(data, str(path), bits=bits)
     check_size(path.name, (img.shape[1], img.shape[0]), size)
     return reduce_frame(img, reduce)
 
@@ -232,7 +247,7 @@ def _check_complete(path: Path, data: bytes) -> None:
     """JPEG must end with its end-of-image marker, PNG with its IEND chunk."""
     if data[:2] == b"\xff\xd8" and not data.rstrip(b"\x00").endswith(b"\xff\xd9"):
         raise BadFrame(f"{path}: truncated JPEG (no end-of-image marker)")
-    if data[:8] == b"\x89PNG\r\n\x1a\n" and b"IEND" not in data[-16:]:
+    if data[:8] == PNG_SIGNATURE and b"IEND" not in data[-16:]:
         raise BadFrame(f"{path}: truncated PNG (no IEND chunk)")
 
 

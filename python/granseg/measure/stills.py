@@ -1,0 +1,113 @@
+"""Still images as the analysis reads them: which files are frames, and their samples as 8 bits.
+
+Machine-vision cameras (and the software that saves their frames) write 10-,
+12- or 14-bit samples into 16-bit PNG or TIFF files, most often in the low
+bits: a 12-bit frame holds 0-4095. OpenCV's plain decoding keeps a 16-bit
+sample's high byte, which leaves such a frame 16 grey levels deep (0-15), and
+the analysis would go on with it silently. Here a run's depth is read from its
+samples instead, one depth for every frame so that the frames keep their
+brightness relative to each other, and each frame is shifted down by it.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from granseg.errors import BadFrame
+
+__all__ = ["IMAGE_SUFFIXES", "SENSOR_BITS", "decode_still", "run_bits", "sensor_bits", "tiff_pages", "to_8bit"]
+
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp")
+# What a camera's converter delivers; a file's samples are taken to span the
+# smallest of these that holds its largest sample (data written in a 16-bit
+# file's high bits, as some cameras do, then spans all 16).
+SENSOR_BITS = (8, 10, 12, 14, 16)
+PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+
+
+def sensor_bits(largest: int) -> int:
+    """The depth [bits] of samples whose largest is ``largest``: the least of SENSOR_BITS holding it."""
+    return next((b for b in SENSOR_BITS if largest < 2 ** b), SENSOR_BITS[-1])
+
+
+def run_bits(files: list[Path]) -> int | None:
+    """The depth [bits] of a run's 16-bit frames: :func:`sensor_bits` of the largest sample of its
+    first and last frames (``files`` in time order; a run brightens or darkens over time, if at all).
+    None where those are 8-bit or cannot be read (their own reading reports it)."""
+    largest = None
+    for path in dict.fromkeys([files[0], files[-1]]):
+        try:
+            data = path.read_bytes()
+        except OSError:
+            continue
+        png = data[:8] == PNG_SIGNATURE
+        if (png and data[24:25] != b"\x10") or (not png and tiff_pages(data) != 1):
+            continue  # 8-bit PNG (bit depth in its header), JPEG or BMP, or a stack refused when read
+        image = _samples(data)
+        if image is not None and image.dtype == np.uint16:
+            largest = max(largest or 0, int(image.max()))
+    return None if largest is None else sensor_bits(largest)
+
+
+def to_8bit(image: np.ndarray, bits: int) -> np.ndarray:
+    """``image`` as uint8: 16-bit samples of ``bits`` depth shifted down to 8 bits (a sample beyond
+    that depth, from a frame brighter than those the depth was read from, is clipped at 255)."""
+    if image.dtype == np.uint8:
+        return image
+    return np.minimum(image >> max(bits - 8, 0), 255).astype(np.uint8)
+
+
+def decode_still(data: bytes, name: str, gray: bool = False, bits: int | None = None) -> np.ndarray:
+    """The image in ``data`` (file ``name``) as BGR uint8 (grey with ``gray``), every depth read:
+    16-bit samples shifted down by ``bits`` (their own depth, :func:`sensor_bits`, when None).
+
+    Raises BadFrame when ``data`` is not a readable image, holds floating-point samples, or is a
+    TIFF of several pages (a stack is not one frame)."""
+    if tiff_pages(data) > 1:
+        raise BadFrame(f"{name}: a TIFF of several pages (a stack): save one image per frame")
+    image = _samples(data, gray)
+    if image is None:
+        raise BadFrame(f"{name}: not a readable image")
+    if image.dtype not in (np.uint8, np.uint16):
+        raise BadFrame(f"{name}: {image.dtype} samples; save the frames as 8- or 16-bit integers")
+    if image.dtype == np.uint16 and bits is None:
+        bits = sensor_bits(int(image.max()))
+    return to_8bit(image, bits or 8)
+
+
+def _samples(data: bytes, gray: bool = False) -> np.ndarray | None:
+    """The image in ``data`` as BGR (grey with ``gray``) at the sample type its file holds; None if
+    OpenCV cannot read it."""
+    buffer = np.frombuffer(data, np.uint8)
+    if tiff_pages(data):  # TIFF may hold any sample type (OpenCV's conversion asserts on float): read as it is
+        return _channels(cv2.imdecode(buffer, cv2.IMREAD_UNCHANGED), gray)
+    return cv2.imdecode(buffer, (cv2.IMREAD_GRAYSCALE if gray else cv2.IMREAD_COLOR) | cv2.IMREAD_ANYDEPTH)
+
+
+def _channels(image: np.ndarray | None, gray: bool) -> np.ndarray | None:
+    """A decoded image of 1, 3 or 4 channels (BGR, BGRA) as grey (``gray``) or BGR."""
+    if image is None or image.ndim == 2:
+        return image if image is None or gray else cv2.cvtColor(image, cv2.COLOR_GRAY2BGR)
+    code = {(3, True): cv2.COLOR_BGR2GRAY, (4, True): cv2.COLOR_BGRA2GRAY, (4, False): cv2.COLOR_BGRA2BGR}
+    key = (image.shape[2], gray)
+    if image.shape[2] == 1:
+        return _channels(image[..., 0], gray)
+    return cv2.cvtColor(image, code[key]) if key in code else image
+
+
+def tiff_pages(data: bytes, most: int = 2) -> int:
+    """How many pages (image file directories) the TIFF in ``data`` holds, counted up to ``most``;
+    0 if ``data`` is not a classic TIFF."""
+    order = {b"II": "little", b"MM": "big"}.get(data[:2])
+    if order is None or int.from_bytes(data[2:4], order) != 42:
+        return 0
+    pages, offset = 0, int.from_bytes(data[4:8], order)
+    while 0 < offset and offset + 2 <= len(data) and pages < most:
+        pages += 1
+        entries = int.from_bytes(data[offset:offset + 2], order)
+        at = offset + 2 + 12 * entries
+        offset = int.from_bytes(data[at:at + 4], order) if at + 4 <= len(data) else 0
+    return pages
