@@ -483,6 +483,8 @@ def test_frames_of_a_camera_of_more_bits_give_the_map_of_their_top_8_bits(frames
     a, b = (analyze(d, save=False, progress=False) for d in (frames, deep))
     np.testing.assert_array_equal(b.n, a.n)
     np.testing.assert_array_equal(b.c_raw, a.c_raw)
+    assert "sample_bits" not in a.quality.figures
+    assert b.quality.figures.get("sample_bits") == {4: 12, 8: 16, 0: None}[shift]
 
 
 @pytest.mark.parametrize("bits", SENSOR_BITS)

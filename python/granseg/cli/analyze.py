@@ -86,6 +86,9 @@ def run(args: argparse.Namespace) -> int:
     if reduced > 1:
         print(f"analysed in frames reduced {reduced} times (spheres "
               f"{result.experiment.particle_diameter_px / reduced:.0f} px across; --reduce 1: as they are)")
+    bits = result.quality.figures.get("sample_bits")
+    if bits is not None:
+        print(f"16-bit frames whose samples are {bits} bits deep: read as their top 8 bits (docs/formats.md)")
     wall = result.quality.figures.get("wall_detections_per_frame", 0.0)
     if wall:
         print(f"left out as hemispheres of the lid or plate: {wall:.1f} per frame")

@@ -273,7 +273,7 @@ def analyze(
     seen = replace(seen, t0=exp.t0)
     reduced = _assemble(spheres, seen, times.row_seconds(len(spheres), fps), smooth, names, bad)
     reduced.classes, reduced.first, reduced.every = classes, first, int(every)
-    reduced.quality = _assess(reduced, shift, reduce, times)
+    reduced.quality = _assess(reduced, shift, reduce, times, getattr(source, "bits", None))
     if times.note is not None:
         log.log(logging.WARNING if times.warn else logging.INFO, "%s: %s", exp.path.parent, times.note)
     result = _in_frame_pixels(reduced, exp, reduce)
@@ -1035,9 +1035,10 @@ def _level_classes(spheres: list[FrameSpheres | None], exp: Experiment) -> tuple
 
 
 def _assess(result: Analysis, shift: tuple[float, int] = (0.0, 0), reduce: int = 1,
-            times: FrameTimes | None = None) -> Quality:
+            times: FrameTimes | None = None, sample_bits: int | None = None) -> Quality:
     """The quality record of ``result`` (analysed in frames reduced ``reduce`` times; ``times``: when
-    the frames were filmed, and whether the map's times come from their own stamps)."""
+    the frames were filmed, and whether the map's times come from their own stamps; ``sample_bits``:
+    how deep 16-bit frames' samples were read, None for 8-bit ones, stills.run_bits)."""
     good = [s for s in result.spheres if s is not None]
     first = good[0]
     learned = result.classes is not None
@@ -1072,6 +1073,7 @@ def _assess(result: Analysis, shift: tuple[float, int] = (0.0, 0), reduce: int =
         spacing=(sphere_spacing(centres, d), d * reduce),
         across_view=(spacing_across_view(centres, float(np.asarray(result.experiment.camera_matrix)[1, 2])),
                      bool(np.any(result.experiment.dist_coeffs != 0))),
+        sample_bits=sample_bits,
     )
 
 

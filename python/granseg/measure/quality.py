@@ -316,7 +316,7 @@ def assess(*, n: np.ndarray, n_heavy: np.ndarray, c0: float, first_heights: np.n
            light_contrast: float | None = None, light_share: float | None = None,
            frames_reduced: int = 1, frames_every: int = 1, frames_first: int = 0,
            frame_times: tuple[float, bool] | None = None, spacing: tuple[float, float] | None = None,
-           across_view: tuple[float, bool] | None = None) -> Quality:
+           across_view: tuple[float, bool] | None = None, sample_bits: int | None = None) -> Quality:
     """Run every check on one analysed run.
 
     n, n_heavy: (n_t, n_layers) counts (rows of bad frames all zero);
@@ -358,7 +358,9 @@ def assess(*, n: np.ndarray, n_heavy: np.ndarray, c0: float, first_heights: np.n
     not taken off); light_share: how far
     that light moved the classes' score over the window before, as a share of
     the gap between the classes (classify.LIGHT_SHARE; the figure
-    ``light_share_of_class_gap``; None: not read); frames_reduced: how many
+    ``light_share_of_class_gap``; None: not read); sample_bits: how many bits
+    deep 16-bit frames' samples were read (the figure ``sample_bits``;
+    measure.stills; None: 8-bit frames or a video); frames_reduced: how many
     times the frames were reduced for the analysis (the figure
     ``frames_reduced``): the figures and limits in px are the reduced
     frames' pixels; frames_every: the map's rows are every this-many-th frame
@@ -412,6 +414,8 @@ def assess(*, n: np.ndarray, n_heavy: np.ndarray, c0: float, first_heights: np.n
         figures["classes_learned_from_the_end"] = True
     if light_contrast is not None:
         figures["light_over_view"] = float(light_contrast)
+    if sample_bits is not None:
+        figures["sample_bits"] = int(sample_bits)
     if light_share is not None:
         figures["light_share_of_class_gap"] = float(light_share) if np.isfinite(light_share) else None
     for name, flags in (placed or {}).items():
