@@ -18,7 +18,7 @@ import numpy as np
 
 from granseg.errors import BadFrame
 
-__all__ = ["IMAGE_SUFFIXES", "SENSOR_BITS", "decode_still", "run_bits", "sensor_bits", "tiff_pages", "to_8bit"]
+__all__ = ["IMAGE_SUFFIXES", "RUN_BITS_FRAMES", "SENSOR_BITS", "decode_still", "run_bits", "sensor_bits", "tiff_pages", "to_8bit"]
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp")
 # What a camera's converter delivers; a file's samples are taken to span the
@@ -26,6 +26,9 @@ IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp")
 # file's high bits, as some cameras do, then spans all 16).
 SENSOR_BITS = (8, 10, 12, 14, 16)
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+# Frames a run's depth is read from (run_bits): a frame brighter than all of them
+# clips at 255, as a sensor does; decoded only where the files are 16-bit.
+RUN_BITS_FRAMES = 5
 
 
 def sensor_bits(largest: int) -> int:
@@ -34,11 +37,12 @@ def sensor_bits(largest: int) -> int:
 
 
 def run_bits(files: list[Path]) -> int | None:
-    """The depth [bits] of a run's 16-bit frames: :func:`sensor_bits` of the largest sample of its
-    first and last frames (``files`` in time order; a run brightens or darkens over time, if at all).
-    None where those are 8-bit or cannot be read (their own reading reports it)."""
+    """The depth [bits] of a run's 16-bit frames: :func:`sensor_bits` of the largest sample of
+    RUN_BITS_FRAMES of them spread over the run, its first and last included (``files`` in time
+    order). None where those are 8-bit or cannot be read (their own reading reports it)."""
     largest = None
-    for path in dict.fromkeys([files[0], files[-1]]):
+    spread = np.unique(np.linspace(0, len(files) - 1, RUN_BITS_FRAMES).round().astype(int))
+    for path in (files[i] for i in spread):
         try:
             data = path.read_bytes()
         except OSError:
@@ -88,14 +92,15 @@ def _samples(data: bytes, gray: bool = False) -> np.ndarray | None:
 
 
 def _channels(image: np.ndarray | None, gray: bool) -> np.ndarray | None:
-    """A decoded image of 1, 3 or 4 channels (BGR, BGRA) as grey (``gray``) or BGR."""
-    if image is None or image.ndim == 2:
-        return image if image is None or gray else cv2.cvtColor(image, cv2.COLOR_GRAY2BGR)
-    code = {(3, True): cv2.COLOR_BGR2GRAY, (4, True): cv2.COLOR_BGRA2GRAY, (4, False): cv2.COLOR_BGRA2BGR}
-    key = (image.shape[2], gray)
-    if image.shape[2] == 1:
-        return _channels(image[..., 0], gray)
-    return cv2.cvtColor(image, code[key]) if key in code else image
+    """A decoded image of 1, 3 or 4 channels (grey, BGR, BGRA) as grey (``gray``) or BGR."""
+    if image is None:
+        return None
+    channels = 1 if image.ndim == 2 else image.shape[2]
+    if channels == 1:
+        image = image.reshape(image.shape[:2])
+    code = {(1, False): cv2.COLOR_GRAY2BGR, (3, True): cv2.COLOR_BGR2GRAY,
+            (4, True): cv2.COLOR_BGRA2GRAY, (4, False): cv2.COLOR_BGRA2BGR}.get((channels, gray))
+    return image if code is None else cv2.cvtColor(image, code)
 
 
 def tiff_pages(data: bytes, most: int = 2) -> int:
@@ -104,9 +109,10 @@ def tiff_pages(data: bytes, most: int = 2) -> int:
     order = {b"II": "little", b"MM": "big"}.get(data[:2])
     if order is None or int.from_bytes(data[2:4], order) != 42:
         return 0
-    pages, offset = 0, int.from_bytes(data[4:8], order)
-    while 0 < offset and offset + 2 <= len(data) and pages < most:
+    pages, offset, seen = 0, int.from_bytes(data[4:8], order), set()
+    while 0 < offset and offset + 2 <= len(data) and pages < most and offset not in seen:  # a loop ends
         pages += 1
+        seen.add(offset)
         entries = int.from_bytes(data[offset:offset + 2], order)
         at = offset + 2 + 12 * entries
         offset = int.from_bytes(data[at:at + 4], order) if at + 4 <= len(data) else 0
