@@ -273,7 +273,7 @@ def analyze(
     seen = replace(seen, t0=exp.t0)
     reduced = _assemble(spheres, seen, times.row_seconds(len(spheres), fps), smooth, names, bad)
     reduced.classes, reduced.first, reduced.every = classes, first, int(every)
-    reduced.quality = _assess(reduced, shift, reduce, times, getattr(source, "bits", None))
+    reduced.quality = _assess(reduced, shift, reduce, times, source.bits)
     if times.note is not None:
         log.log(logging.WARNING if times.warn else logging.INFO, "%s: %s", exp.path.parent, times.note)
     result = _in_frame_pixels(reduced, exp, reduce)

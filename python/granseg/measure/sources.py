@@ -295,6 +295,7 @@ class VideoFrames:
         self.sought = 0
         self.times: list[float] = []
         self.mover = _Mover()
+        self.bits: int | None = None  # OpenCV converts every frame to 8 bits itself (FrameDirectory.bits)
         self.keep()
 
     def keep(self, every: int = 1, first: int = 0) -> None:
