@@ -48,9 +48,10 @@ def run_bits(files: list[Path]) -> int | None:
         except OSError:
             continue
         png = data[:8] == PNG_SIGNATURE
-        if (png and data[24:25] != b"\x10") or (not png and tiff_pages(data) != 1):
+        pages = 0 if png else tiff_pages(data)
+        if (png and data[24:25] != b"\x10") or (not png and pages != 1):
             continue  # 8-bit PNG (bit depth in its header), JPEG or BMP, or a stack refused when read
-        image = _samples(data)
+        image = _samples(data, tiff=pages == 1)
         if image is not None and image.dtype == np.uint16:
             largest = max(largest or 0, int(image.max()))
     return None if largest is None else sensor_bits(largest)
@@ -70,9 +71,10 @@ def decode_still(data: bytes, name: str, gray: bool = False, bits: int | None = 
 
     Raises BadFrame when ``data`` is not a readable image, holds floating-point samples, or is a
     TIFF of several pages (a stack is not one frame)."""
-    if tiff_pages(data) > 1:
+    pages = tiff_pages(data)
+    if pages > 1:
         raise BadFrame(f"{name}: a TIFF of several pages (a stack): save one image per frame")
-    image = _samples(data, gray)
+    image = _samples(data, gray, tiff=pages == 1)
     if image is None:
         raise BadFrame(f"{name}: not a readable image")
     if image.dtype not in (np.uint8, np.uint16):
@@ -82,11 +84,11 @@ def decode_still(data: bytes, name: str, gray: bool = False, bits: int | None = 
     return to_8bit(image, bits or 8)
 
 
-def _samples(data: bytes, gray: bool = False) -> np.ndarray | None:
-    """The image in ``data`` as BGR (grey with ``gray``) at the sample type its file holds; None if
-    OpenCV cannot read it."""
+def _samples(data: bytes, gray: bool = False, tiff: bool = False) -> np.ndarray | None:
+    """The image in ``data`` (a one-page TIFF where ``tiff``, as the caller has counted its pages) as
+    BGR (grey with ``gray``) at the sample type its file holds; None if OpenCV cannot read it."""
     buffer = np.frombuffer(data, np.uint8)
-    if tiff_pages(data):  # TIFF may hold any sample type (OpenCV's conversion asserts on float): read as it is
+    if tiff:  # TIFF may hold any sample type (OpenCV's conversion asserts on float): read as it is
         return _channels(cv2.imdecode(buffer, cv2.IMREAD_UNCHANGED), gray)
     return cv2.imdecode(buffer, (cv2.IMREAD_GRAYSCALE if gray else cv2.IMREAD_COLOR) | cv2.IMREAD_ANYDEPTH)
 
