@@ -59,9 +59,11 @@ def test_video_gives_the_same_map_as_its_frames(frames, tmp_path):
     writer.release()
     (video.parent / "experiment.json").write_text((frames / "experiment.json").read_text())
     a = analyze(frames, save=False, progress=False)
-    b = analyze(video, save=False, progress=False)
+    b = analyze(video, save=False, progress=False, preview=tmp_path / "previews")
     assert np.array_equal(a.n, b.n) and np.array_equal(a.n_heavy, b.n_heavy)
     assert np.allclose(a.t, b.t)
+    # each previewed frame of the video has its own file (they once all went to preview_run.png)
+    assert sorted(p.name for p in (tmp_path / "previews").iterdir()) == [f"preview_run_{i}.png" for i in range(4)]
 
 
 def test_cli_writes_map_and_refuses_to_overwrite(frames, capsys):
@@ -504,14 +506,91 @@ def test_a_frame_of_floating_point_samples_is_a_bad_frame_named(frames):
         decode_still(bad, "bad.tif")
 
 
-def test_a_tiff_stack_is_refused_with_how_to_save_it_as_frames(frames, tmp_path, capsys):
-    stack = tmp_path / "stack"
-    stack.mkdir()
-    cv2.imwritemulti(str(stack / "run.tif"), [cv2.imread(str(p)) for p in sorted(frames.glob("*.png"))])
-    shutil.copy(frames / "experiment.json", stack)
-    with pytest.raises(ValueError, match=r"run.tif: a TIFF stack of 4 pages.*Image Sequence"):
-        analyze(stack, save=False, progress=False)
-    assert main(["analyze", str(stack)]) == 2 and "TIFF stack of 4 pages" in capsys.readouterr().err
+def _stack(frames, path, bits=8, **write):
+    """The frames of folder ``frames`` as one TIFF stack at ``path`` (RGB pages, tifffile;
+    ``bits`` 12: 16-bit samples in the low bits with noise below the top 8, as a camera saves
+    them), experiment.json beside it."""
+    import tifffile
+
+    images = np.stack([cv2.imread(str(p))[..., ::-1] for p in sorted(frames.glob("*.png"))])
+    if bits > 8:
+        noise = np.random.default_rng(0).integers(0, 1 << (bits - 8), images.shape, dtype=np.uint16)
+        images = (images.astype(np.uint16) << (bits - 8)) | noise
+    path.parent.mkdir(exist_ok=True)
+    tifffile.imwrite(path, images, photometric="rgb", **write)
+    shutil.copy(frames / "experiment.json", path.parent)
+    return path
+
+
+@pytest.mark.parametrize("bits, compression, given", [(8, None, "file"), (12, None, "folder"), (8, "zlib", "file")])
+def test_a_tiff_stack_gives_the_map_of_its_frames(frames, tmp_path, bits, compression, given):
+    """A stack's pages are the recording's frames, read as stills are (a 12-bit stack at its own
+    depth); the stack may be given as its file or as the folder that holds it alone."""
+    from granseg.measure.sources import TiffStack, open_frames
+
+    stack = _stack(frames, tmp_path / "stack" / "run.tif", bits, compression=compression)
+    source, exp = open_frames(stack if given == "file" else stack.parent)
+    assert isinstance(source, TiffStack) and exp == stack.parent / "experiment.json" and len(source) == 4
+    assert source.names[2] == "run.tif#2" and source.bits == (None if bits == 8 else 12)
+    a, b = (analyze(d, save=False, progress=False) for d in (frames, source.path))
+    np.testing.assert_array_equal(b.n, a.n)
+    np.testing.assert_array_equal(b.c_raw, a.c_raw)
+    np.testing.assert_allclose(b.t, a.t)
+    half = analyze(stack, every=2, save=False, progress=False)
+    np.testing.assert_array_equal(half.n, a.n[::2])
+
+
+def test_an_imagej_stack_tells_its_frame_rate(frames, tmp_path, capsys):
+    """ImageJ's frame interval is the stack's rate where experiment.json gives none (as a video's is)."""
+    import tifffile
+
+    from granseg.measure.sources import open_frames
+
+    grey = np.stack([cv2.imread(str(p), cv2.IMREAD_GRAYSCALE) for p in sorted(frames.glob("*.png"))])
+    path = tmp_path / "ij" / "run.tif"
+    path.parent.mkdir()
+    tifffile.imwrite(path, grey, imagej=True, metadata={"axes": "TYX", "finterval": 0.25})
+    assert open_frames(path)[0].fps == 4.0
+    exp = json.loads((frames / "experiment.json").read_text())
+    (path.parent / "experiment.json").write_text(json.dumps({**exp, "fps": None}))
+    with pytest.warns(UserWarning, match="greyscale"):
+        m = analyze(path, save=False, progress=False)
+    np.testing.assert_allclose(np.diff(m.t), 0.25)
+
+
+def test_stacks_that_are_not_one_recording_are_refused_naming_why(frames, tmp_path, capsys):
+    """A stack among other images, a stack of two channels, and one whose compression needs a
+    package that is not installed are refused before any frame is analysed, saying what to do."""
+    import tifffile
+
+    mixed = tmp_path / "mixed"
+    mixed.mkdir()
+    cv2.imwritemulti(str(mixed / "run.tif"), [cv2.imread(str(p)) for p in sorted(frames.glob("*.png"))])
+    shutil.copy(frames / "frame_0001.png", mixed / "zframe.png")
+    shutil.copy(frames / "experiment.json", mixed)
+    with pytest.raises(ValueError, match=r"run.tif: a TIFF stack of 4 pages among other images.*stack's file"):
+        analyze(mixed, save=False, progress=False)
+    assert main(["analyze", str(mixed)]) == 2 and "TIFF stack of 4 pages" in capsys.readouterr().err
+    two = tmp_path / "two" / "run.tif"
+    two.parent.mkdir()
+    tifffile.imwrite(two, np.zeros((3, 2, 40, 50), np.uint8), imagej=True, metadata={"axes": "TCYX"})
+    shutil.copy(frames / "experiment.json", two.parent)
+    with pytest.raises(ValueError, match=r"run.tif: a stack of T = 3, C = 2 \(TCYX\).*one image per frame"):
+        analyze(two, save=False, progress=False)
+    one = _stack(frames, tmp_path / "one" / "run.tif")
+    tifffile.imwrite(one, np.zeros((40, 50), np.uint8))
+    with pytest.raises(ValueError, match="run.tif: a TIFF of one image, not a recording"):
+        analyze(one, save=False, progress=False)
+    floats = _stack(frames, tmp_path / "floats" / "run.tif")
+    tifffile.imwrite(floats, np.zeros((3, 40, 50), np.float32), photometric="minisblack")
+    with pytest.raises(ValueError, match="run.tif: float32 samples; save the stack as 8- or 16-bit integers"):
+        analyze(floats, save=False, progress=False)
+    try:
+        import imagecodecs  # noqa: F401
+    except ImportError:  # OpenCV writes LZW, which tifffile reads only with imagecodecs
+        lzw = mixed / "run.tif"
+        with pytest.raises(ValueError, match="run.tif: pages compressed with LZW.*pip install imagecodecs"):
+            analyze(lzw, save=False, progress=False)
 
 
 def test_frames_numbered_without_leading_zeros_are_refused_naming_two(tmp_path, capsys):

@@ -17,7 +17,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         description="Undistort, detect and classify the spheres in every frame and write the "
         "heavy-concentration map (docs/formats.md). PATH is a directory of PNG/JPEG/TIFF frames holding "
         "experiment.json, or a video file with experiment.json beside it.")
-    p.add_argument("path", metavar="PATH", help="frames directory or video file")
+    p.add_argument("path", metavar="PATH", help="frames directory, TIFF stack or video file")
     p.add_argument("--out", metavar="FILE|DIR/",
                    help="map file to write (default: map.npz beside experiment.json); a folder (existing, or "
                         "ending in /) gets NAME.npz after the experiment's name, so recordings analysed into "

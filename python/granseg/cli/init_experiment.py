@@ -15,7 +15,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "null are listed. NAME_window.png, beside the frames folder or video, shows the first frame undistorted with a pixel ruler (and the "
         "window when given): read the window's corners off it and run again with --window and --force. "
         "Formats: docs/formats.md.")
-    p.add_argument("path", metavar="PATH", help="frames directory or video file")
+    p.add_argument("path", metavar="PATH", help="frames directory, TIFF stack or video file")
     p.add_argument("--name", help="experiment name (default: the folder's or video's name)")
     p.add_argument("--heavy", metavar="MATERIAL", help="heavy material (glass, ceramic, POM, steel, PP, or any name "
                    "with --rho-h)")

@@ -15,7 +15,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "(frames directories or videos with experiment.json, any frame rates), measure the speed "
         "of every one-diameter layer at the wall, join the recordings and fit "
         "v(z) = v1 + (v0 - v1) exp(-z / delta).")
-    p.add_argument("recordings", nargs="+", metavar="RECORDING", help="frames directory or video file")
+    p.add_argument("recordings", nargs="+", metavar="RECORDING", help="frames directory, TIFF stack or video file")
     p.add_argument("--json", metavar="OUT.json", required=True, help="profile and fit to write")
     p.add_argument("--figure", metavar="STEM", help="write the profile figure as STEM.png and STEM.pdf")
     p.add_argument("--preview", metavar="DIR", help="write each recording's tracks drawn on its first frame")

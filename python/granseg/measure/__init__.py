@@ -1,6 +1,6 @@
 """From camera frames to concentration maps (issue 3).
 
-    analyze(path, ...)          frames directory or video -> map .npz
+    analyze(path, ...)          frames directory, TIFF stack or video -> map .npz
     calibrate_camera(dir, ...)  checkerboard photos -> camera_matrix, dist_coeffs
     detect_particles(img, d)    sphere centres in one undistorted image
     load_experiment(path)       read and check experiment.json

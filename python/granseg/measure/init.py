@@ -28,7 +28,7 @@ import numpy as np
 from granseg._io import atomic_write, check_writable, read_json
 from granseg.constants import N_LAYERS
 from granseg.measure.camera import Undistorter
-from granseg.measure.sources import FrameDirectory, VideoFrames, open_frames, shot_times
+from granseg.measure.sources import FrameDirectory, VideoFrames, open_frames
 
 __all__ = ["HELP", "clock_rate", "init_experiment", "preview_path", "window_preview"]
 
@@ -114,7 +114,9 @@ def init_experiment(
                                    if particle_diameter_px is not None
                                    else None if doc["window"] is None
                                    else round((doc["window"][3] - doc["window"][1]) / N_LAYERS, 2))
-    missing = [f for f, v in doc.items() if v is None and not (f == "fps" and isinstance(source, VideoFrames))]
+    # a video's stream and an ImageJ stack tell their own rate, used where fps is null
+    missing = [f for f, v in doc.items() if v is None and not (f == "fps" and (isinstance(source, VideoFrames)
+                                                                              or source.fps))]
     doc["_help"] = HELP
     text = json.dumps(doc, indent=1)
     atomic_write(exp_path, lambda tmp: tmp.write_text(text + "\n", encoding="utf-8"), force=force)
@@ -170,7 +172,7 @@ def clock_rate(source: FrameDirectory | VideoFrames) -> float | None:
     for the time the stills span (CLOCK_RESOLUTION_SHARE)."""
     if not isinstance(source, FrameDirectory) or len(source) < 2:
         return None
-    shot = shot_times(source.files)
+    shot = source.clock()
     if shot is None:
         return None
     clock, resolution = shot

@@ -61,7 +61,6 @@ from granseg.measure.sources import (
     VideoFrames,
     check_size,
     open_frames,
-    shot_times,
 )
 from granseg.measure.wall import remove_wall_glare
 
@@ -179,7 +178,8 @@ def analyze(
     Parameters
     ----------
     path : a directory of frames (PNG, JPEG, TIFF or BMP, 8 or 16 bits; name order = time order) holding
-        ``experiment.json``, or a video file with ``experiment.json`` beside it.
+        ``experiment.json``, or a TIFF stack (its pages the frames; the file, or a folder holding it
+        alone) or a video file with ``experiment.json`` beside it.
     out : map file to write (docs/formats.md ``.npz``); default ``map.npz`` beside
         ``experiment.json``. A folder (existing, or given with a trailing ``/``)
         receives ``NAME.npz`` named after the experiment, so several recordings
@@ -404,7 +404,7 @@ def _shot_times(source: FrameDirectory, fps: float) -> FrameTimes:
     given wrong, shots the camera missed), the map's times are the clock's; where the clock
     says the names do not sort in the order shot (a camera's file numbers rolling over from 9999
     to 0001), or gives two stills one time, they cannot be, and frame_times fails."""
-    shot = shot_times(source.files) if len(source) >= 3 else None
+    shot = source.clock() if len(source) >= 3 else None
     if shot is None:
         return FrameTimes()
     clock, resolution = shot
@@ -865,7 +865,7 @@ def _check_same_size(source, first_index: int, first: np.ndarray) -> None:
         except BadFrame:
             continue
         if other.shape[:2] != first.shape[:2]:
-            raise ValueError(f"{source.files[first_index]}: the first frame is {first.shape[1]} x {first.shape[0]} px "
+            raise ValueError(f"{source.names[first_index]}: the first frame is {first.shape[1]} x {first.shape[0]} px "
                              f"but {source.names[i]} is {other.shape[1]} x {other.shape[0]} px; every frame of a "
                              "recording must have one size (remove or replace the odd frame)")
         return

@@ -24,8 +24,11 @@ HEADER_PX = 54  # band above the image for the frame's caption
 
 
 def preview_path(directory: Path, frame_name: str) -> Path:
-    """Where the preview of frame ``frame_name`` goes: ``preview_<frame stem>.png``."""
-    return directory / f"preview_{Path(frame_name).stem.replace('#', '_')}.png"
+    """Where the preview of frame ``frame_name`` goes: ``preview_<frame stem>.png``; a frame of a
+    video or a stack (``run.avi#3``) as ``preview_run_3.png`` (the file's stem and the frame's
+    place: the stem alone would give every frame of the recording one file)."""
+    file, _, place = frame_name.partition("#")
+    return directory / f"preview_{Path(file).stem}{'_' + place if place else ''}.png"
 
 
 def check_previews(directory: Path, frame_names: list[str], force: bool) -> None:

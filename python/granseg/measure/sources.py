@@ -1,10 +1,11 @@
-"""Where frames come from: a directory of images or a video file."""
+"""Where frames come from: a directory of images, a TIFF stack or a video file."""
 
 from __future__ import annotations
 
 import itertools
 import os
 import re
+import threading
 import time
 from collections.abc import Callable, Iterator
 from concurrent.futures import ThreadPoolExecutor
@@ -16,9 +17,18 @@ import numpy as np
 from granseg._io import cv2_path
 from granseg.errors import BadFrame
 from granseg.measure.camera import reduce_frame
-from granseg.measure.stills import IMAGE_SUFFIXES, PNG_SIGNATURE, decode_still, run_bits, tiff_pages
+from granseg.measure.stills import (
+    IMAGE_SUFFIXES,
+    PNG_SIGNATURE,
+    RUN_BITS_FRAMES,
+    decode_still,
+    run_bits,
+    sensor_bits,
+    tiff_pages,
+    to_8bit,
+)
 
-__all__ = ["BadFrame", "FrameDirectory", "VideoFrames", "open_frames", "IMAGE_SUFFIXES"]
+__all__ = ["BadFrame", "FrameDirectory", "TiffStack", "VideoFrames", "open_frames", "IMAGE_SUFFIXES"]
 
 
 class FrameDirectory:
@@ -34,8 +44,7 @@ class FrameDirectory:
         self.directory = directory
         # hidden files are not frames: macOS writes "._NAME.png" beside every file it copies to a
         # drive without its own metadata (an exFAT card), which would sort first and shift every row
-        self.all_files = sorted(p for p in directory.iterdir()
-                                if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES and not p.name.startswith("."))
+        self.all_files = _image_files(directory)
         self.files = self.all_files
         if not self.files:
             raise ValueError(f"{directory}: no PNG, JPEG, TIFF or BMP frames in the directory")
@@ -62,9 +71,14 @@ class FrameDirectory:
         wrong with its file, also when its own size (width, height) is not ``size``."""
         return read_image(self.files[i], reduce, size, self.bits)
 
+    def clock(self) -> tuple[np.ndarray, float] | None:
+        """When each frame kept was shot by its camera's clock, and the clock's resolution
+        (:func:`shot_times`); None where the files carry no such time."""
+        return shot_times(self.files)
+
     def frames(self) -> Iterator[tuple[int, np.ndarray | None | BadFrame]]:
         """Frame indices; images are read by the workers (None here)."""
-        for i in range(len(self.files)):
+        for i in range(len(self)):
             yield i, None
 
     def some(self, indices: set[int], workers: int = 1, reduce: int = 1,
@@ -92,9 +106,18 @@ class FrameDirectory:
             return None
 
 
+def _image_files(directory: Path) -> list[Path]:
+    """The images of a frames folder in name order. Hidden files are not frames: macOS writes
+    "._NAME.png" beside every file it copies to a drive without its own metadata (an exFAT card),
+    which would sort first and shift every row."""
+    return sorted(p for p in directory.iterdir()
+                  if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES and not p.name.startswith("."))
+
+
 def _check_not_a_stack(path: Path) -> None:
-    """A TIFF of several pages (an ImageJ or camera stack) is a whole recording in one file: refused
-    with how to save it as frames, before the run starts (its first page alone would be one row)."""
+    """A TIFF of several pages (an ImageJ or camera stack) among other images is a whole recording
+    in one file, not a frame: refused before the run starts (its first page alone would be one
+    row). A folder holding the stack alone is read as the stack (:func:`open_frames`)."""
     if path.suffix.lower() not in (".tif", ".tiff"):
         return
     try:
@@ -102,8 +125,190 @@ def _check_not_a_stack(path: Path) -> None:
     except OSError:
         return  # reported when the frame is read
     if pages > 1:
-        raise ValueError(f"{path}: a TIFF stack of {pages} pages; granseg reads one image per frame: save the "
-                         "stack as an image sequence (ImageJ: File > Save As > Image Sequence) or as a video")
+        raise ValueError(f"{path}: a TIFF stack of {pages} pages among other images; granseg reads a folder's "
+                         "images as one frame each, and a stack as a whole recording: give the stack's file as "
+                         "the recording (experiment.json beside it), or save it as an image sequence "
+                         "(ImageJ: File > Save As > Image Sequence)")
+
+
+def _is_stack(path: Path) -> bool:
+    """Whether ``path`` is a TIFF (classic or BigTIFF) whose first series holds more than one image."""
+    if path.suffix.lower() not in (".tif", ".tiff"):
+        return False
+    import tifffile
+
+    try:
+        with tifffile.TiffFile(path) as tif:
+            return len(tif.series) > 0 and _series_frames(tif.series[0])[0] > 1
+    except Exception:  # noqa: BLE001 - not a TIFF tifffile can read: its reading names the problem
+        return False
+
+
+def _series_frames(series) -> tuple[int, str]:
+    """How many images (frames) a tifffile series holds, and the axes of one image (YX, YXS, SYX)."""
+    axes = series.axes
+    image = next(a for a in ("YXS", "SYX", "YX") if axes.endswith(a))
+    return int(np.prod(series.shape[:len(axes) - len(image)], dtype=np.int64)), image
+
+
+class TiffStack(FrameDirectory):
+    """The pages of one TIFF file (a stack saved by ImageJ or a high-speed camera's software, an
+    OME-TIFF, a BigTIFF) as the frames of a recording, read like a folder's stills: on demand, in
+    the worker threads, in page order. Frame i is page first + i x every (:meth:`keep`).
+
+    Read with tifffile, which keeps the file open and its pages found: OpenCV's
+    ``imreadmulti(start, count)`` walks the file's chain of pages from its start for every page
+    asked, 126 ms for page 1000 of a 3000-page stack and 382 ms for its last, against 0.25 and
+    0.46 ms (``benches/bench_tiff_stack.py``, BENCHMARKS.md "A recording as one TIFF stack").
+    tifffile also reads ImageJ's stacks larger than 4 GB, which list only their first page (its
+    own handling, not tested here). Uncompressed, Deflate and PackBits pages are read
+    as they are; LZW and JPEG need the ``imagecodecs`` package, and a stack compressed so without
+    it is refused, naming it. 16-bit pages are read at the run's own depth, as stills are
+    (:mod:`granseg.measure.stills`). ``fps``: ImageJ's frame interval where the file records it
+    (used where experiment.json gives none, as a video's rate is). A stack has no camera clock
+    (:meth:`clock`).
+    """
+
+    def __init__(self, path: Path):
+        import tifffile
+
+        if not path.is_file():
+            raise FileNotFoundError(f"{path}: TIFF stack not found")
+        self.path = self.directory = path
+        try:
+            self._tif = tifffile.TiffFile(path)
+        except Exception as exc:  # noqa: BLE001 - tifffile raises many kinds for a damaged file
+            raise ValueError(f"{path}: not a TIFF file that can be read ({exc})") from None
+        self._lock = threading.Lock()  # one file handle, shared by the worker threads
+        try:
+            self._open(path)
+        except ValueError:
+            self.close()
+            raise
+        except Exception as exc:  # noqa: BLE001 - a file tifffile parses but cannot make sense of
+            self.close()
+            raise ValueError(f"{path}: cannot read the TIFF stack ({type(exc).__name__}: {exc})") from None
+
+    def _open(self, path: Path) -> None:
+        series = self._tif.series[0] if self._tif.series else None
+        if series is None:
+            raise ValueError(f"{path}: a TIFF file with no image")
+        n, self._image_axes = _series_frames(series)
+        if n < 2:
+            raise ValueError(f"{path}: a TIFF of one image, not a recording: give the folder that holds the "
+                             "frames, one image each")
+        extra = [f"{a} = {k}" for a, k in zip(series.axes[:len(series.axes) - len(self._image_axes)],
+                                               series.shape, strict=False) if k > 1]
+        if len(extra) > 1:
+            raise ValueError(f"{path}: a stack of {', '.join(extra)} ({series.axes}): several images per time "
+                             "(channels or planes); save one image per frame, the time series alone")
+        if series.dtype not in (np.uint8, np.uint16):
+            raise ValueError(f"{path}: {series.dtype} samples; save the stack as 8- or 16-bit integers")
+        photometric = int(series.keyframe.photometric)
+        if photometric not in (0, 1, 2):  # MINISWHITE, MINISBLACK, RGB
+            raise ValueError(f"{path}: pages of photometric interpretation {series.keyframe.photometric.name}; "
+                             "save the stack as grey or RGB")
+        self._inverted = photometric == 0
+        self._pages_in_file = n
+        self.all_pages = list(range(n))
+        self.pages = self.all_pages
+        self.names = [self.name(i) for i in self.pages]
+        self.first, self.every = 0, 1
+        self.fps = _imagej_rate(self._tif)
+        self.bits = None
+        try:
+            self._samples(0)
+        except ValueError as exc:
+            if "imagecodecs" not in str(exc):
+                raise ValueError(f"{path}: its first page cannot be read ({exc})") from None
+            raise ValueError(f"{path}: pages compressed with {series.keyframe.compression.name}, which tifffile "
+                             "reads only with the imagecodecs package: pip install imagecodecs, or save the stack "
+                             "uncompressed") from None
+        self.bits = self._run_bits()
+
+    def name(self, page: int) -> str:
+        """Page ``page``'s name: the file's, then the page's place in it."""
+        return f"{self.path.name}#{page}"
+
+    def keep(self, every: int = 1, first: int = 0) -> None:
+        """Keep every ``every``-th page from page ``first`` on, that one included."""
+        self.pages = self.all_pages[first::every]
+        self.names = [self.name(i) for i in self.pages]
+        self.first, self.every = first, every
+
+    def __len__(self) -> int:
+        return len(self.pages)
+
+    def clock(self) -> None:
+        """A stack's pages carry no camera clock."""
+        return None
+
+    def read(self, i: int, reduce: int = 1, size: tuple[int, int] | None = None) -> np.ndarray:
+        """Frame ``i`` as BGR uint8, reduced ``reduce`` times; BadFrame says what is wrong with its page,
+        also when its size (width, height) is not ``size``."""
+        name = self.names[i]
+        try:
+            image = self._samples(self.pages[i])
+        except Exception as exc:  # noqa: BLE001 - a damaged page: tifffile raises many kinds
+            raise BadFrame(f"{name}: cannot read the page; is the file damaged or cut short? "
+                           f"({type(exc).__name__}: {exc})") from None
+        if image.dtype == np.uint16:
+            image = to_8bit(image, self.bits or sensor_bits(int(image.max())))
+        check_size(name, (image.shape[1], image.shape[0]), size)
+        return reduce_frame(image, reduce)
+
+    def _samples(self, page: int) -> np.ndarray:
+        """Page ``page`` as grey or BGR at its own sample type."""
+        # one file handle, shared by the worker threads; one thread a page, for they fill the cores
+        with self._lock:
+            image = self._tif.asarray(key=page, series=0, maxworkers=1)
+        if self._image_axes == "SYX":  # planar samples
+            image = np.moveaxis(image, 0, -1)
+        if image.ndim == 3 and image.shape[2] == 1:
+            image = image[..., 0]
+        if self._inverted:  # 0 is white
+            image = np.iinfo(image.dtype).max - image
+        if image.ndim == 2:
+            return cv2.cvtColor(image, cv2.COLOR_GRAY2BGR)
+        if image.shape[2] in (3, 4):
+            return np.ascontiguousarray(image[..., 2::-1])  # RGB(A) -> BGR
+        raise ValueError(f"pages of {image.shape[2]} samples (neither grey nor RGB)")
+
+    def _run_bits(self) -> int | None:
+        """The 16-bit pages' depth, as :func:`granseg.measure.stills.run_bits` reads a folder's."""
+        if self._tif.series[0].dtype != np.uint16:
+            return None
+        spread = np.unique(np.linspace(0, self._pages_in_file - 1, RUN_BITS_FRAMES).round().astype(int))
+        largest = 0
+        for page in spread:
+            try:
+                largest = max(largest, int(self._samples(int(page)).max()))
+            except Exception:  # noqa: BLE001 - a damaged page is reported when read
+                continue
+        return sensor_bits(largest) if largest else None
+
+    def close(self) -> None:
+        """Close the file (the source is garbage collected otherwise)."""
+        tif = getattr(self, "_tif", None)
+        if tif is not None:
+            tif.close()
+            self._tif = None
+
+    def __del__(self) -> None:
+        self.close()
+
+
+def _imagej_rate(tif) -> float | None:
+    """Frames per second that ImageJ recorded with a stack (its frame interval, or its fps), else None."""
+    meta = tif.imagej_metadata or {}
+    for key, rate in (("finterval", lambda v: 1.0 / v), ("fps", lambda v: v)):
+        try:
+            value = float(meta[key])
+        except (KeyError, TypeError, ValueError):
+            continue
+        if np.isfinite(value) and value > 0:
+            return float(rate(value))
+    return None
 
 
 def _naming(name: str) -> str:
@@ -442,10 +647,16 @@ def _skipped(cap: cv2.VideoCapture, n: int) -> bool:
 
 
 def open_frames(path: str | os.PathLike) -> tuple[FrameDirectory | VideoFrames, Path]:
-    """The frame source at ``path`` and the experiment.json that describes it."""
+    """The frame source at ``path`` and the experiment.json that describes it: a folder of stills,
+    a TIFF stack (the file, or a folder holding it as its only image) or a video."""
     p = Path(path)
     if not p.exists():
-        raise FileNotFoundError(f"{p}: no such frames directory or video file")
+        raise FileNotFoundError(f"{p}: no such frames directory, TIFF stack or video file")
     if p.is_dir():
+        images = _image_files(p)
+        if len(images) == 1 and _is_stack(images[0]):
+            return TiffStack(images[0]), p / "experiment.json"
         return FrameDirectory(p), p / "experiment.json"
+    if p.suffix.lower() in (".tif", ".tiff"):
+        return TiffStack(p), p.parent / "experiment.json"
     return VideoFrames(p), p.parent / "experiment.json"
