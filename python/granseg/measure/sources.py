@@ -20,9 +20,9 @@ from granseg.measure.camera import reduce_frame
 from granseg.measure.stills import (
     IMAGE_SUFFIXES,
     PNG_SIGNATURE,
-    RUN_BITS_FRAMES,
     decode_still,
     run_bits,
+    run_depth,
     sensor_bits,
     tiff_pages,
     to_8bit,
@@ -104,6 +104,12 @@ class FrameDirectory:
             return self.read(i, reduce, size)
         except BadFrame:
             return None
+
+
+def frame_in_file(path: Path, place: int) -> str:
+    """The name of the frame at ``place`` (from 0) of a recording held in one file, a video or a TIFF
+    stack: ``run.avi#3`` (previews and detections name it so; ``preview.preview_path`` splits it)."""
+    return f"{path.name}#{place}"
 
 
 def _image_files(directory: Path) -> list[Path]:
@@ -209,7 +215,6 @@ class TiffStack(FrameDirectory):
             raise ValueError(f"{path}: pages of photometric interpretation {series.keyframe.photometric.name}; "
                              "save the stack as grey or RGB")
         self._inverted = photometric == 0
-        self._pages_in_file = n
         self.all_pages = list(range(n))
         self.pages = self.all_pages
         self.names = [self.name(i) for i in self.pages]
@@ -224,11 +229,11 @@ class TiffStack(FrameDirectory):
             raise ValueError(f"{path}: pages compressed with {series.keyframe.compression.name}, which tifffile "
                              "reads only with the imagecodecs package: pip install imagecodecs, or save the stack "
                              "uncompressed") from None
-        self.bits = self._run_bits()
+        self.bits = run_depth(n, self._readable_samples)  # 16-bit pages' depth, as a folder's (None: 8-bit)
 
     def name(self, page: int) -> str:
-        """Page ``page``'s name: the file's, then the page's place in it."""
-        return f"{self.path.name}#{page}"
+        """Page ``page``'s name (:func:`frame_in_file`)."""
+        return frame_in_file(self.path, page)
 
     def keep(self, every: int = 1, first: int = 0) -> None:
         """Keep every ``every``-th page from page ``first`` on, that one included."""
@@ -274,18 +279,12 @@ class TiffStack(FrameDirectory):
             return np.ascontiguousarray(image[..., 2::-1])  # RGB(A) -> BGR
         raise ValueError(f"pages of {image.shape[2]} samples (neither grey nor RGB)")
 
-    def _run_bits(self) -> int | None:
-        """The 16-bit pages' depth, as :func:`granseg.measure.stills.run_bits` reads a folder's."""
-        if self._tif.series[0].dtype != np.uint16:
+    def _readable_samples(self, page: int) -> np.ndarray | None:
+        """:meth:`_samples`, None where the page cannot be read (a damaged page is reported when read)."""
+        try:
+            return self._samples(page)
+        except Exception:  # noqa: BLE001 - tifffile raises many kinds
             return None
-        spread = np.unique(np.linspace(0, self._pages_in_file - 1, RUN_BITS_FRAMES).round().astype(int))
-        largest = 0
-        for page in spread:
-            try:
-                largest = max(largest, int(self._samples(int(page)).max()))
-            except Exception:  # noqa: BLE001 - a damaged page is reported when read
-                continue
-        return sensor_bits(largest) if largest else None
 
     def close(self) -> None:
         """Close the file (the source is garbage collected otherwise)."""
@@ -510,8 +509,8 @@ class VideoFrames:
         self.names = [self.name(i) for i in range(self.expected)]
 
     def name(self, i: int) -> str:
-        """Frame ``i``'s name: the file's, then the frame's place in the stream."""
-        return f"{self.path.name}#{self.first + i * self.every}"
+        """Frame ``i``'s name (:func:`frame_in_file`)."""
+        return frame_in_file(self.path, self.first + i * self.every)
 
     def __len__(self) -> int:
         return len(self.names)

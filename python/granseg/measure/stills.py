@@ -11,6 +11,7 @@ brightness relative to each other, and each frame is shifted down by it.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 
 import cv2
@@ -18,7 +19,8 @@ import numpy as np
 
 from granseg.errors import BadFrame
 
-__all__ = ["IMAGE_SUFFIXES", "RUN_BITS_FRAMES", "SENSOR_BITS", "decode_still", "run_bits", "sensor_bits", "tiff_pages", "to_8bit"]
+__all__ = ["IMAGE_SUFFIXES", "RUN_BITS_FRAMES", "SENSOR_BITS", "decode_still", "run_bits", "run_depth", "sensor_bits",
+           "tiff_pages", "to_8bit"]
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp")
 # What a camera's converter delivers; a file's samples are taken to span the
@@ -36,25 +38,33 @@ def sensor_bits(largest: int) -> int:
     return next((b for b in SENSOR_BITS if largest < 2 ** b), SENSOR_BITS[-1])
 
 
-def run_bits(files: list[Path]) -> int | None:
+def run_depth(n: int, samples: Callable[[int], np.ndarray | None]) -> int | None:
     """The depth [bits] of a run's 16-bit frames: :func:`sensor_bits` of the largest sample of
-    RUN_BITS_FRAMES of them spread over the run, its first and last included (``files`` in time
-    order). None where those are 8-bit or cannot be read (their own reading reports it)."""
+    RUN_BITS_FRAMES of its ``n`` frames spread over it, the first and last included;
+    ``samples(i)`` gives frame i at its own sample type (None where it is 8-bit, or cannot be read:
+    its own reading reports it). None where no frame read is 16-bit."""
     largest = None
-    spread = np.unique(np.linspace(0, len(files) - 1, RUN_BITS_FRAMES).round().astype(int))
-    for path in (files[i] for i in spread):
-        try:
-            data = path.read_bytes()
-        except OSError:
-            continue
-        png = data[:8] == PNG_SIGNATURE
-        pages = 0 if png else tiff_pages(data)
-        if (png and data[24:25] != b"\x10") or (not png and pages != 1):
-            continue  # 8-bit PNG (bit depth in its header), JPEG or BMP, or a stack refused when read
-        image = _samples(data, tiff=pages == 1)
+    for i in np.unique(np.linspace(0, n - 1, RUN_BITS_FRAMES).round().astype(int)):
+        image = samples(int(i))
         if image is not None and image.dtype == np.uint16:
             largest = max(largest or 0, int(image.max()))
     return None if largest is None else sensor_bits(largest)
+
+
+def run_bits(files: list[Path]) -> int | None:
+    """:func:`run_depth` of a folder's still ``files`` (in time order)."""
+    def samples(i: int) -> np.ndarray | None:
+        try:
+            data = files[i].read_bytes()
+        except OSError:
+            return None
+        png = data[:8] == PNG_SIGNATURE
+        pages = 0 if png else tiff_pages(data)
+        if (png and data[24:25] != b"\x10") or (not png and pages != 1):
+            return None  # 8-bit PNG (bit depth in its header), JPEG or BMP, or a stack refused when read
+        return _samples(data, tiff=pages == 1)
+
+    return run_depth(len(files), samples)
 
 
 def to_8bit(image: np.ndarray, bits: int) -> np.ndarray:
