@@ -230,7 +230,8 @@ def _by_height(rows: np.ndarray, win) -> dict:
 def outline_fit(folder: Path) -> dict:
     """(c), the outline fit alone: started at the true centres with the true radii, where it moves them
     (3 iterations, as the detector), and where its edge finder puts the rim, by direction, against the
-    true outline's radius, for spheres near the window's left / right side and in its middle column."""
+    true outline's radius, for spheres near the window's left / right side and in its middle column, and
+    for those in the middle 60 % of its width in the three layers nearest the plate and the lid."""
     from granseg.measure.detect import _smooth
     from granseg.measure.outline import RIM_SEARCH_PX, RIM_SEARCH_SIZE, _sample, fit_outlines
     from granseg.measure.wall import remove_wall_glare
@@ -242,7 +243,7 @@ def outline_fit(folder: Path) -> dict:
     d = exp.particle_diameter_px
     x0, y0, x1, y1 = exp.window
     xm, ym = (x0 + x1) / 2, (y0 + y1) / 2
-    rows, edges = [], {"left": [], "middle": [], "right": []}
+    rows, edges = [], {"left": [], "middle": [], "right": [], "lowest three layers": [], "top three layers": []}
     n_rays = 48
     theta = np.linspace(0, 2 * np.pi, n_rays, endpoint=False)
     for tp, img in zip(truth.particles, truth.images, strict=True):
@@ -276,8 +277,11 @@ def outline_fit(folder: Path) -> dict:
                          -np.inf)
         edge = steps[1:-1][np.argmax(sharp, axis=2)] - radius[:, None]
         centre_rows = np.abs(tp[:, 1] - ym) < 150
+        # by height: the middle 60 % of the width, the three layers nearest the plate and the lid
+        layer, central = (y1 - tp[:, 1]) / ((y1 - y0) / 15), np.abs(tp[:, 0] - xm) < 0.3 * (x1 - x0)
         for name, sel in (("left", tp[:, 0] < x0 + BAND), ("right", tp[:, 0] > x1 - BAND),
-                          ("middle", (np.abs(tp[:, 0] - xm) < BAND) & centre_rows)):
+                          ("middle", (np.abs(tp[:, 0] - xm) < BAND) & centre_rows),
+                          ("lowest three layers", central & (layer < 3)), ("top three layers", central & (layer >= 12))):
             edges[name].append(edge[sel])
     by_angle = {name: {f"{int(a)}deg": round(float(np.concatenate(v)[:, i].mean()), 2)
                        for i, a in zip(range(0, n_rays, 6), np.degrees(theta[::6]), strict=True)}

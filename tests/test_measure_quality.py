@@ -8,6 +8,7 @@ import re
 import warnings
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 
@@ -41,6 +42,7 @@ from granseg.measure.quality import (
     LENS_SPHERES,
     SPACING_SLACK,
     VACANCY_GAP,
+    VIEW_MOVE_SLACK,
     WALL_LINE_SLACK,
     Quality,
     WallLines,
@@ -48,6 +50,7 @@ from granseg.measure.quality import (
     spacing_across_view,
     sphere_spacing,
     vacancies,
+    view_move,
     wall_lines,
 )
 from granseg.measure.sources import open_frames
@@ -402,6 +405,52 @@ def test_a_mild_lens_left_on_is_named_by_window_lines_before_a_line_is_moved(tmp
     assert pinhole["spacing_across_view"].passed and not pinhole["window_lines"].passed
     assert "calibrate-camera" in pinhole["window_lines"].about, pinhole["window_lines"].line()
     assert "calibrate-camera" not in _checks_as_given(r)["window_lines"].about
+
+
+def test_view_move_is_what_both_walls_do_together():
+    """A move of the view moves the lid's reading and the plate's alike; one wall alone (the bottom
+    layer riding the plate's bumps, a lid that rises) or a frame's glitch is not a move."""
+    rng = np.random.default_rng(0)
+    still = np.column_stack([0.01 + 0.005 * rng.standard_normal(40), 0.02 + 0.005 * rng.standard_normal(40)])
+    assert view_move(still)[0] < 0.01
+    knocked = still.copy()
+    knocked[25:] += [-0.08, 0.08]  # the image moved down by 0.08 d from row 25 on
+    move, row = view_move(knocked)
+    assert move == pytest.approx(0.08, abs=0.012) and row >= 24
+    up = still.copy()
+    up[25:] += [0.08, -0.08]
+    assert view_move(up)[0] == pytest.approx(0.08, abs=0.012)
+    plate_rides = still.copy()
+    plate_rides[10:14, 0] += 0.2  # four frames, the plate alone
+    plate_rides[30, :] += [-0.3, 0.3]  # one frame's glitch
+    assert view_move(plate_rides)[0] < 0.01
+    lid_rises = still.copy()
+    lid_rises[20:, 1] -= 0.1
+    assert view_move(lid_rises)[0] < 0.01
+    gaps = knocked.copy()
+    gaps[::2] = np.nan  # rows without a reading are left out; the row named is the map's
+    move, row = view_move(gaps)
+    assert move == pytest.approx(0.08, abs=0.012) and 24 <= row < 40 and np.isfinite(gaps[row]).all()
+    assert np.isnan(view_move(still[:2])[0]) and np.isnan(view_move(np.full((9, 2), np.nan))[0])
+
+
+def test_a_camera_moved_during_the_run_is_flagged(tmp_path):
+    """The frames' second half moved down by a tenth of a diameter (a camera knocked): the map's
+    later rows are binned by lines off the walls, and view_steady says so; as rendered, it passes."""
+    r = render_scene("S-PP-75", 12, seed=9, out_dir=tmp_path / "frames", **SMALL)
+    as_rendered = analyze(r.source, save=False, progress=False, workers=2)
+    assert {c.name: c for c in as_rendered.quality.checks}["view_steady"].passed
+    frames = sorted(Path(r.source).glob("*.png"))
+    assert len(frames) == 12
+    down = np.float32([[1, 0, 0], [0, 1, 0.1 * SMALL["particle_diameter_px"]]])
+    for f in frames[6:]:
+        img = cv2.imread(str(f))
+        cv2.imwrite(str(f), cv2.warpAffine(img, down, img.shape[1::-1], borderMode=cv2.BORDER_REPLICATE))
+    with pytest.warns(QualityWarning, match="view_steady"):
+        moved = analyze(r.source, save=False, progress=False, workers=2)
+    check = {c.name: c for c in moved.quality.checks}["view_steady"]
+    assert not check.passed and check.value > VIEW_MOVE_SLACK and "map row" in check.about
+    assert "granseg init" in quality.ADVICE["view_steady"]
 
 
 def test_quality_is_stored_in_the_map_and_refused_downstream(tmp_path):

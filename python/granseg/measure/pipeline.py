@@ -1063,6 +1063,7 @@ def _assess(result: Analysis, shift: tuple[float, int] = (0.0, 0), reduce: int =
         gloss_at_spots=result.classes.gloss_at_spots if learned else None,
         vacant=_vacant(sample, result.experiment),
         walls=wall_lines(np.r_[first.y, first.wall_y], result.experiment.window),
+        view_lines=_walls_by_row(result.spheres, result.experiment.window),
         learned_from_end=learned and result.classes.both_ends,
         light_contrast=result.classes.field.contrast() if learned and result.classes.field is not None else None,
         light_share=result.classes.light_share if learned else None,
@@ -1075,6 +1076,16 @@ def _assess(result: Analysis, shift: tuple[float, int] = (0.0, 0), reduce: int =
                      bool(np.any(result.experiment.dist_coeffs != 0))),
         sample_bits=sample_bits,
     )
+
+
+def _walls_by_row(spheres: list, window: tuple[float, float, float, float]) -> np.ndarray:
+    """(n_t, 2) each map row's walls (plate, lid offsets [d], :func:`wall_lines`); NaN for a bad frame."""
+    lines = np.full((len(spheres), 2), np.nan)
+    for i, s in enumerate(spheres):
+        if s is not None:
+            w = wall_lines(np.r_[s.y, s.wall_y], window)
+            lines[i] = w.plate, w.lid
+    return lines
 
 
 # Frames searched for vacancies and measured for the spheres' spacing, evenly

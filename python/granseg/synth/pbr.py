@@ -1096,12 +1096,15 @@ def _mask_centres(mi, base: dict[str, Any], pts, radii, uv, d, canvas, spp) -> t
 
 
 def render_fixtures(out: Path, looks: list[str] | None = None, spp: int = FIXTURE_SPP, force: bool = False,
-                    frames: int = FIXTURE_FRAMES, verify: bool = True, seed_offset: int = 0) -> None:
+                    frames: int = FIXTURE_FRAMES, verify: bool = True, seed_offset: int = 0,
+                    lens: bool = True) -> None:
     """Render the looks of FIXTURE_LOOKS into out/<look>/ and write out/verification.json.
 
     ``seed_offset`` renders other packings of the same looks: the tuning
     family (TUNING_SEED_OFFSET) that the detector may be developed on, kept
-    apart from the committed fixtures it is judged on.
+    apart from the committed fixtures it is judged on. ``lens=False``
+    renders them through a camera without distortion (a control: what the
+    lens and its taking off do to the detector).
     """
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -1113,6 +1116,8 @@ def render_fixtures(out: Path, looks: list[str] | None = None, spp: int = FIXTUR
         args["seed"] += seed_offset
         c0 = args.pop("c0")
         args["experiment"] = {"name": f"pbr-{name}", "c0": c0, **args.get("experiment", {})}
+        if not lens:
+            args["dist_coeffs"] = np.zeros(5)
         t0 = time.perf_counter()
         r = render_pbr_frames(fixture_map(frames, c0), particle_diameter_px=FIXTURE_D_PX,
                               image_size=FIXTURE_SIZE, jpeg_quality=FIXTURE_JPEG, noise=FIXTURE_NOISE,
@@ -1154,12 +1159,13 @@ def main(argv: list[str] | None = None) -> int:
     fx.add_argument("--force", action="store_true", help="overwrite existing files")
     fx.add_argument("--seed-offset", type=int, default=0,
                     help=f"render other packings of the looks ({TUNING_SEED_OFFSET}: the tuning family)")
+    fx.add_argument("--no-lens", action="store_true", help="a camera without distortion (a control)")
     a = ap.parse_args(argv)
     looks = a.looks.split(",") if a.looks else None
     for name in looks or []:
         if name not in FIXTURE_LOOKS:
             ap.error(f"unknown look {name!r}; choose from {', '.join(FIXTURE_LOOKS)}")
-    render_fixtures(a.out_dir, looks, a.spp, a.force, a.frames, not a.no_verify, a.seed_offset)
+    render_fixtures(a.out_dir, looks, a.spp, a.force, a.frames, not a.no_verify, a.seed_offset, not a.no_lens)
     return 0
 
 

@@ -1,0 +1,111 @@
+"""A view that moves during the run: the `view_steady` check (issue 9).
+
+`window_lines` reads the walls in the first frame only. A camera knocked (or a
+cell that shifts) halfway through a run moves every later frame against the
+window, and the map's later rows are binned by lines off the walls. This bench
+renders 2-D scenes, analyses each run as rendered (the check's figure where
+nothing moved: its false alarms), then with the second half of its frames moved
+down (or up) by each of ``--moves`` pixels (the check's figure, its verdict, the
+other checks that fail, and the moved rows' layer counts and c_raw against the
+truth of the frames as rendered, which the window was drawn for):
+
+    PYTHONPATH=python python benches/bench_view_move.py --scenes S-PP-75 bumps-S-PP --seeds 7 8 \\
+        --frames 24 --moves 1.5 3 -3 6 [--json benches/results/view_move.json]
+
+Moves are applied to frames saved as stills; scenes rendered as video are read
+as rendered only. No truth is read by `analyze`; the truth only scores the map.
+"""
+
+from __future__ import annotations
+
+import argparse
+import shutil
+import sys
+import tempfile
+import warnings
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from granseg._io import save_json
+from granseg.measure import analyze
+from granseg.synth.scenes import render_scene, scene_names
+
+STILLS = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp")
+
+
+def _move(folder: Path, first: int, dy: float) -> None:
+    """Shift the frames of ``folder`` from the ``first``-th on by ``dy`` px (down positive), in place."""
+    frames = sorted(p for p in folder.iterdir() if p.suffix.lower() in STILLS)
+    shift = np.float32([[1, 0, 0], [0, 1, dy]])
+    for f in frames[first:]:
+        img = cv2.imread(str(f), cv2.IMREAD_UNCHANGED)
+        moved = cv2.warpAffine(img, shift, img.shape[1::-1], flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        if f.suffix.lower() in (".jpg", ".jpeg"):
+            cv2.imwrite(str(f), moved, [cv2.IMWRITE_JPEG_QUALITY, 95])
+        else:
+            cv2.imwrite(str(f), moved)
+
+
+def _read(source, truth, rows: slice) -> dict:
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        a = analyze(source, save=False, progress=False)
+    check = {c.name: c for c in a.quality.checks}.get("view_steady")
+    n, n_true = a.n[rows], truth.n[rows]
+    return {"view_steady": None if check is None else round(check.value, 4),
+            "flagged": bool(check is not None and not check.passed),
+            "other_failed": [c.name for c in a.quality.failed if c.name != "view_steady"],
+            "counts_moved_rows": round(float(np.nanmean(np.abs(n - n_true) / np.maximum(n_true, 1))), 4),
+            "c_raw_rmsd_moved_rows": round(float(np.sqrt(np.nanmean((a.c_raw[rows] - truth.c_raw[rows]) ** 2))), 4)}
+
+
+def run(scene: str, seed: int, frames: int, moves: list[float], work: Path) -> dict:
+    base = work / f"{scene}-{seed}"
+    truth = render_scene(scene, frames, seed=seed, out_dir=base)
+    rows = slice(frames // 2, frames)
+    out = {"as rendered": _read(truth.source, truth, rows)}
+    d = float(truth.experiment["particle_diameter_px"])
+    if Path(truth.source).is_dir():
+        for dy in moves:
+            moved = work / f"{scene}-{seed}-moved"
+            shutil.rmtree(moved, ignore_errors=True)
+            shutil.copytree(base, moved)
+            _move(moved, frames // 2, dy)
+            out[f"moved {dy:+g} px ({dy / d:+.3f} d)"] = _read(moved, truth, rows)
+    shutil.rmtree(base, ignore_errors=True)
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--scenes", nargs="+", default=["S-PP-75"], help="2-D scenes, or 'all'")
+    ap.add_argument("--seeds", nargs="+", type=int, default=[7])
+    ap.add_argument("--frames", type=int, default=24)
+    ap.add_argument("--moves", nargs="*", type=float, default=[1.5, 3.0, -3.0, 6.0],
+                    help="vertical moves [px, down positive] of the second half of the frames")
+    ap.add_argument("--json", type=Path, default=None)
+    args = ap.parse_args()
+    scenes = scene_names() if args.scenes == ["all"] else args.scenes
+    results: dict = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        for scene in scenes:
+            for seed in args.seeds:
+                r = run(scene, seed, args.frames, args.moves, Path(tmp))
+                results[f"{scene} seed {seed}"] = r
+                for name, v in r.items():
+                    print(f"{scene:34s} {seed:3d} {name:26s} view_steady {v['view_steady']}"
+                          f"{' FLAGGED' if v['flagged'] else ''}  moved rows: counts {100 * v['counts_moved_rows']:.1f} %"
+                          f" c_raw {v['c_raw_rmsd_moved_rows']:.3f}  other failed {v['other_failed']}", flush=True)
+    as_rendered = [r["as rendered"]["view_steady"] for r in results.values() if r["as rendered"]["view_steady"] is not None]
+    if as_rendered:
+        print(f"as rendered: largest view_steady {max(as_rendered):.4f} over {len(as_rendered)} runs; "
+              f"flagged {sum(r['as rendered']['flagged'] for r in results.values())}")
+    if args.json:
+        save_json(args.json, {"command": " ".join(sys.argv), "frames": args.frames,
+                              "moves_px": args.moves, "results": results}, force=True)
+
+
+if __name__ == "__main__":
+    main()
