@@ -1,4 +1,4 @@
-"""A view that moves during the run: the `view_steady` check (issue 9).
+"""A view that moves during the run, or is turned: the `view_steady` and `window_level` checks (issue 9).
 
 `window_lines` reads the walls in the first frame only. A camera knocked (or a
 cell that shifts) halfway through a run moves every later frame against the
@@ -10,7 +10,11 @@ other checks that fail, and the moved rows' layer counts and c_raw against the
 truth of the frames as rendered, which the window was drawn for):
 
     PYTHONPATH=python python benches/bench_view_move.py --scenes S-PP-75 bumps-S-PP --seeds 7 8 \\
-        --frames 24 --moves 1.5 3 -3 6 [--json benches/results/view_move.json]
+        --frames 24 --moves 1.5 3 -3 6 [--turns 0.5 1 -1] [--json benches/results/view_move.json]
+
+``--turns`` also analyses the run with every frame turned by each angle [deg,
+counter-clockwise] about the image's centre: a camera that is not level (the
+`window_level` check; counts and c_raw then over every row).
 
 Moves are applied to frames saved as stills; scenes rendered as video are read
 as rendered only. No truth is read by `analyze`; the truth only scores the map.
@@ -48,20 +52,33 @@ def _move(folder: Path, first: int, dy: float) -> None:
             cv2.imwrite(str(f), moved)
 
 
-def _read(source, truth, rows: slice) -> dict:
+def _turn(folder: Path, degrees: float) -> None:
+    """Turn every frame of ``folder`` by ``degrees`` (counter-clockwise) about its centre, in place."""
+    for f in sorted(p for p in folder.iterdir() if p.suffix.lower() in STILLS):
+        img = cv2.imread(str(f), cv2.IMREAD_UNCHANGED)
+        h, w = img.shape[:2]
+        turn = cv2.getRotationMatrix2D((w / 2, h / 2), degrees, 1.0)
+        turned = cv2.warpAffine(img, turn, (w, h), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        cv2.imwrite(str(f), turned, [cv2.IMWRITE_JPEG_QUALITY, 95] if f.suffix.lower() in (".jpg", ".jpeg") else [])
+
+
+def _read(source, truth, rows: slice, judged: str = "view_steady") -> dict:
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         a = analyze(source, save=False, progress=False)
-    check = {c.name: c for c in a.quality.checks}.get("view_steady")
+    checks = {c.name: c for c in a.quality.checks}
+    check = checks.get(judged)
     n, n_true = a.n[rows], truth.n[rows]
-    return {"view_steady": None if check is None else round(check.value, 4),
+    level = checks.get("window_level")
+    return {judged: None if check is None else round(check.value, 4),
             "flagged": bool(check is not None and not check.passed),
-            "other_failed": [c.name for c in a.quality.failed if c.name != "view_steady"],
+            "window_level": None if level is None else round(level.value, 4),
+            "other_failed": [c.name for c in a.quality.failed if c.name != judged],
             "counts_moved_rows": round(float(np.nanmean(np.abs(n - n_true) / np.maximum(n_true, 1))), 4),
             "c_raw_rmsd_moved_rows": round(float(np.sqrt(np.nanmean((a.c_raw[rows] - truth.c_raw[rows]) ** 2))), 4)}
 
 
-def run(scene: str, seed: int, frames: int, moves: list[float], work: Path) -> dict:
+def run(scene: str, seed: int, frames: int, moves: list[float], turns: list[float], work: Path) -> dict:
     base = work / f"{scene}-{seed}"
     truth = render_scene(scene, frames, seed=seed, out_dir=base)
     rows = slice(frames // 2, frames)
@@ -74,6 +91,12 @@ def run(scene: str, seed: int, frames: int, moves: list[float], work: Path) -> d
             shutil.copytree(base, moved)
             _move(moved, frames // 2, dy)
             out[f"moved {dy:+g} px ({dy / d:+.3f} d)"] = _read(moved, truth, rows)
+        for deg in turns:
+            turned = work / f"{scene}-{seed}-turned"
+            shutil.rmtree(turned, ignore_errors=True)
+            shutil.copytree(base, turned)
+            _turn(turned, deg)
+            out[f"turned {deg:+g} deg"] = _read(turned, truth, slice(0, frames), judged="window_level")
     shutil.rmtree(base, ignore_errors=True)
     return out
 
@@ -85,6 +108,8 @@ def main() -> None:
     ap.add_argument("--frames", type=int, default=24)
     ap.add_argument("--moves", nargs="*", type=float, default=[1.5, 3.0, -3.0, 6.0],
                     help="vertical moves [px, down positive] of the second half of the frames")
+    ap.add_argument("--turns", nargs="*", type=float, default=[],
+                    help="angles [deg, counter-clockwise] every frame is turned by, each in turn")
     ap.add_argument("--json", type=Path, default=None)
     args = ap.parse_args()
     scenes = scene_names() if args.scenes == ["all"] else args.scenes
@@ -92,19 +117,25 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         for scene in scenes:
             for seed in args.seeds:
-                r = run(scene, seed, args.frames, args.moves, Path(tmp))
+                r = run(scene, seed, args.frames, args.moves, args.turns, Path(tmp))
                 results[f"{scene} seed {seed}"] = r
                 for name, v in r.items():
-                    print(f"{scene:34s} {seed:3d} {name:26s} view_steady {v['view_steady']}"
-                          f"{' FLAGGED' if v['flagged'] else ''}  moved rows: counts {100 * v['counts_moved_rows']:.1f} %"
+                    judged = "window_level" if name.startswith("turned") else "view_steady"
+                    level = "" if judged == "window_level" else f" window_level {v['window_level']}"
+                    print(f"{scene:34s} {seed:3d} {name:26s} {judged} {v[judged]}"
+                          f"{' FLAGGED' if v['flagged'] else ''}{level}  rows judged: counts {100 * v['counts_moved_rows']:.1f} %"
                           f" c_raw {v['c_raw_rmsd_moved_rows']:.3f}  other failed {v['other_failed']}", flush=True)
     as_rendered = [r["as rendered"]["view_steady"] for r in results.values() if r["as rendered"]["view_steady"] is not None]
     if as_rendered:
         print(f"as rendered: largest view_steady {max(as_rendered):.4f} over {len(as_rendered)} runs; "
               f"flagged {sum(r['as rendered']['flagged'] for r in results.values())}")
+    levels = [r["as rendered"]["window_level"] for r in results.values() if r["as rendered"]["window_level"] is not None]
+    if levels:
+        print(f"as rendered: largest window_level {max(levels):.4f} over {len(levels)} runs; flagged "
+              f"{sum('window_level' in r['as rendered']['other_failed'] for r in results.values())}")
     if args.json:
         save_json(args.json, {"command": " ".join(sys.argv), "frames": args.frames,
-                              "moves_px": args.moves, "results": results}, force=True)
+                              "moves_px": args.moves, "turns_deg": args.turns, "results": results}, force=True)
 
 
 if __name__ == "__main__":

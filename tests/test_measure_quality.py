@@ -40,6 +40,7 @@ from granseg.measure.quality import (
     LENS_HINT,
     LENS_SLACK,
     LENS_SPHERES,
+    LEVEL_SLACK,
     SPACING_SLACK,
     VACANCY_GAP,
     VIEW_MOVE_SLACK,
@@ -47,6 +48,7 @@ from granseg.measure.quality import (
     Quality,
     WallLines,
     assess,
+    plate_tilt,
     spacing_across_view,
     sphere_spacing,
     vacancies,
@@ -451,6 +453,38 @@ def test_a_camera_moved_during_the_run_is_flagged(tmp_path):
     check = {c.name: c for c in moved.quality.checks}["view_steady"]
     assert not check.passed and check.value > VIEW_MOVE_SLACK and "map row" in check.about
     assert "granseg init" in quality.ADVICE["view_steady"]
+
+
+@pytest.mark.parametrize("climb", [0.15, -0.15, 0.0])
+def test_plate_tilt_reads_how_the_plate_layer_climbs_across_the_window(climb):
+    """Spheres resting on the plate, their heights climbing by ``climb`` d across the window (a view
+    turned), with a loose second layer above: plate_tilt reads the climb; too few spheres, NaN."""
+    window = (0.0, 0.0, 300.0, 450.0)  # 15 layers of 30 px
+    x = np.tile(np.arange(15.0, 300.0, 30.0), 4) + np.repeat([0.0, 3.0, 7.0, 11.0], 10)
+    resting = 0.5 + climb * (x - 150.0) / 300.0
+    y = np.r_[450.0 - 30.0 * resting, 450.0 - 30.0 * (resting + 0.87)]
+    assert plate_tilt(np.r_[x, x], y, window) == pytest.approx(climb, abs=0.02)
+    assert np.isnan(plate_tilt(x[:6], y[:6], window))
+
+
+def test_a_camera_not_level_is_flagged(tmp_path):
+    """Every frame turned by 1.5 deg (a camera not level): the plate's layer climbs across the window
+    and window_level says by how much and by what angle; as rendered, it passes."""
+    r = render_scene("S-PP-75", 6, seed=9, out_dir=tmp_path / "frames", **SMALL)
+    as_rendered = analyze(r.source, save=False, progress=False, workers=2)
+    assert {c.name: c for c in as_rendered.quality.checks}["window_level"].passed
+    for f in sorted(Path(r.source).glob("*.png")):
+        img = cv2.imread(str(f))
+        h, w = img.shape[:2]
+        turn = cv2.getRotationMatrix2D((w / 2, h / 2), 1.5, 1.0)
+        cv2.imwrite(str(f), cv2.warpAffine(img, turn, (w, h), borderMode=cv2.BORDER_REPLICATE))
+    with pytest.warns(QualityWarning, match="window_level"):
+        turned = analyze(r.source, save=False, progress=False, workers=2)
+    check = {c.name: c for c in turned.quality.checks}["window_level"]
+    assert not check.passed and check.value > LEVEL_SLACK and "right end" in check.about
+    degrees = float(re.search(r"turned by about ([0-9.]+) deg", check.about).group(1))
+    assert 0.7 < degrees < 1.8
+    assert turned.quality.figures["window_level_d"] > LEVEL_SLACK
 
 
 def test_quality_is_stored_in_the_map_and_refused_downstream(tmp_path):

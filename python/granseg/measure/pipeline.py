@@ -50,6 +50,7 @@ from granseg.measure.quality import (
     Quality,
     QualityWarning,
     assess,
+    plate_tilt,
     spacing_across_view,
     sphere_spacing,
     vacancies,
@@ -1064,6 +1065,7 @@ def _assess(result: Analysis, shift: tuple[float, int] = (0.0, 0), reduce: int =
         vacant=_vacant(sample, result.experiment),
         walls=wall_lines(np.r_[first.y, first.wall_y], result.experiment.window),
         view_lines=_walls_by_row(result.spheres, result.experiment.window),
+        level=_level(sample, result.experiment.window),
         learned_from_end=learned and result.classes.both_ends,
         light_contrast=result.classes.field.contrast() if learned and result.classes.field is not None else None,
         light_share=result.classes.light_share if learned else None,
@@ -1086,6 +1088,14 @@ def _walls_by_row(spheres: list, window: tuple[float, float, float, float]) -> n
             w = wall_lines(np.r_[s.y, s.wall_y], window)
             lines[i] = w.plate, w.lid
     return lines
+
+
+def _level(sample: list[FrameSpheres], window: tuple[float, float, float, float]) -> tuple[float, float]:
+    """How much higher [d] the plate's layer lies at the window's right end than at its left, over the
+    frames ``sample`` (:func:`quality.plate_tilt`), and the angle [deg] that turns the view by."""
+    tilt = plate_tilt(np.concatenate([s.x for s in sample]), np.concatenate([s.y for s in sample]), window)
+    layer_px = (window[3] - window[1]) / N_LAYERS
+    return tilt, float(np.degrees(np.arctan2(tilt * layer_px, window[2] - window[0])))
 
 
 # Frames searched for vacancies and measured for the spheres' spacing, evenly

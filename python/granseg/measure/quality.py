@@ -58,7 +58,7 @@ from granseg.measure.classify import AMBIGUOUS, MARGIN, interface_labels
 from granseg.measure.layers import N_LAYERS, height, nearest_distances, nearest_spacing
 
 __all__ = ["Check", "Quality", "QualityWarning", "WallLines", "assess", "depth_mean_check", "spacing_across_view",
-           "sphere_spacing", "vacancies", "view_move", "views_table",
+           "plate_tilt", "sphere_spacing", "vacancies", "view_move", "views_table",
            "wall_lines",
            "window_check_of"]
 
@@ -137,6 +137,18 @@ WALL_LINE_SLACK = 0.1
 # during the run").
 VIEW_MOVE_REACH = 2
 VIEW_MOVE_SLACK = 0.05
+# A camera that is not level turns the walls in the image, and the layers with them: the window's
+# lines meet a wall at one end and miss it at the other. The layer resting on the plate (held
+# there by gravity; under the lid the 2-D renderer's spheres hang loose, and the lid's reading
+# scatters by up to 0.14 d across the window on untilted tuning runs) is read in each half of
+# the window, over the sampled frames, as window_lines reads it; twice the right half's reading
+# less the left's is how much higher the layer lies at the window's right end than at its left.
+# The limit, 0.1 d, puts the window's ends 0.05 d off the wall, as view_steady allows the view to
+# move. On the 2-D tuning seeds 7-8 (eight scenes, as rendered) the figure stays within 0.03 d;
+# S-PP-75 turned by 0.5 deg reads 0.08 (counts 2.4 % off), by 1 deg 0.16 (3.8 %; BENCHMARKS.md,
+# "A camera that is not level").
+LEVEL_SLACK = 0.1
+LEVEL_SPHERES = 5
 # Frames are taken as filmed at an even rate: the map's time of frame k is k / fps. Where a
 # video's own time stamps stray from a straight line (or stills' camera clock from one every
 # 1 / fps) by more than this share of the run's length, the map's times are the stamps instead
@@ -283,6 +295,10 @@ ADVICE = {
                    "lines that are off the walls. Fix the camera (and check that the cell does not shift); to "
                    "keep this run, analyse the frames before and after the move as two recordings, each with "
                    "its window drawn on its own frames (granseg init)",
+    "window_level": "the camera is not level: the spheres resting on the plate climb across the window by the "
+                    "figure given (diameters), so the window's lines meet the walls at one end and miss them at "
+                    "the other, and the layers are binned aslant. Level the camera, or turn the frames by the "
+                    "angle given (the other way) before analysing; check the preview's lines against the walls",
     "frame_totals": "some frames find far more or fewer spheres: lighting changes, dropped or corrupt frames",
     "heavy_share_conserved": "the depth-mean heavy share drifts from c0: the window does not sample the "
                              "bed fairly, or the classes drift over the run",
@@ -336,7 +352,7 @@ def assess(*, n: np.ndarray, n_heavy: np.ndarray, c0: float, first_heights: np.n
            frames_reduced: int = 1, frames_every: int = 1, frames_first: int = 0,
            frame_times: tuple[float, bool] | None = None, spacing: tuple[float, float] | None = None,
            across_view: tuple[float, bool] | None = None, sample_bits: int | None = None,
-           view_lines: np.ndarray | None = None) -> Quality:
+           view_lines: np.ndarray | None = None, level: tuple[float, float] | None = None) -> Quality:
     """Run every check on one analysed run.
 
     n, n_heavy: (n_t, n_layers) counts (rows of bad frames all zero);
@@ -402,7 +418,11 @@ def assess(*, n: np.ndarray, n_heavy: np.ndarray, c0: float, first_heights: np.n
     not checked;
     view_lines: (n_t, 2) each row's walls as :func:`wall_lines` reads them
     (plate, lid; NaN rows without a reading), for the view_steady check
-    (:func:`view_move`; None: not checked).
+    (:func:`view_move`; None: not checked);
+    level: how much higher [d] the layer resting on the plate lies at the
+    window's right end than at its left (:func:`plate_tilt`), and the
+    angle [deg] by which that turns the view, for the window_level check
+    (the figure ``window_level_d``; None or NaN: not checked).
     """
     n_t, n_layers = n.shape
     good = n.sum(axis=1) > 0
@@ -412,6 +432,7 @@ def assess(*, n: np.ndarray, n_heavy: np.ndarray, c0: float, first_heights: np.n
               *_detection_checks(scores, vacant, walls, settle, spacing, across_view),
               *_count_checks(n[good], n_heavy[good], c0),
               *_view_check(view_lines),
+              *_level_check(level),
               _check("bad_frames", n_bad_frames / max(n_t, 1), 0.05, "<=", "share of frames without a reading")]
     if frame_times is not None:
         uneven, from_stamps = frame_times
@@ -451,6 +472,8 @@ def assess(*, n: np.ndarray, n_heavy: np.ndarray, c0: float, first_heights: np.n
         figures["spacing_across_view"] = float(across_view[0]) if np.isfinite(across_view[0]) else None
     if spacing is not None:
         figures["sphere_spacing_d"] = float(spacing[0]) if np.isfinite(spacing[0]) else None
+    if level is not None:
+        figures["window_level_d"] = float(level[0]) if np.isfinite(level[0]) else None
     if walls is not None:
         figures["window_lines_d"] = {k: float(v) if np.isfinite(v) else None  # None: too few spheres there
                                      for k, v in (("plate", walls.plate), ("lid", walls.lid))}
@@ -557,6 +580,34 @@ def view_move(lines: np.ndarray) -> tuple[float, int]:
     both = np.where(down_lid * down_plate > 0, np.minimum(np.abs(down_lid), np.abs(down_plate)), 0.0)
     most = int(np.argmax(both))
     return float(both[most]), int(rows[most])
+
+
+def plate_tilt(x: np.ndarray, y: np.ndarray, window: tuple[float, float, float, float]) -> float:
+    """How much higher [d] the layer of spheres resting on the plate lies at the window's right end
+    than at its left (negative: lower), from the centres ``x``, ``y`` [px] of some frames' spheres in
+    the window: in each half of the window, the WALL_LINE_QUANTILE percentile of the heights within
+    WALL_LINE_BAND of the plate's line (as :func:`wall_lines` reads a wall), and twice the right
+    half's less the left's (the halves' middles lie half the width apart). NaN with fewer than
+    LEVEL_SPHERES such spheres in either half."""
+    x, h = np.asarray(x, dtype=float), height(np.asarray(y, dtype=float), window)
+    near = (h > WALL_LINE_BAND[0]) & (h < WALL_LINE_BAND[1])
+    right = x >= (window[0] + window[2]) / 2
+    halves = [h[near & side] for side in (~right, right)]
+    if min(len(v) for v in halves) < LEVEL_SPHERES:
+        return float("nan")
+    left_h, right_h = (float(np.percentile(v, WALL_LINE_QUANTILE)) for v in halves)
+    return 2.0 * (right_h - left_h)
+
+
+def _level_check(level: tuple[float, float] | None) -> list[Check]:
+    """The window_level check from :func:`plate_tilt` and the angle it means; none where not read."""
+    if level is None or not np.isfinite(level[0]):
+        return []
+    tilt, degrees = level
+    side = "right" if tilt > 0 else "left"
+    return [_check("window_level", abs(tilt), LEVEL_SLACK, "<=",
+                   f"the layer resting on the plate lies {abs(tilt):.3f} d higher at the window's {side} end than "
+                   f"at its other: the view is turned by about {abs(degrees):.2f} deg")]
 
 
 def _view_check(lines: np.ndarray | None) -> list[Check]:
