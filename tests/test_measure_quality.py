@@ -40,6 +40,7 @@ from granseg.measure.quality import (
     LENS_HINT,
     LENS_SLACK,
     LENS_SPHERES,
+    LEVEL_SIGMAS,
     LEVEL_SLACK,
     SPACING_SLACK,
     VACANCY_GAP,
@@ -48,6 +49,7 @@ from granseg.measure.quality import (
     Quality,
     WallLines,
     assess,
+    level_reading,
     plate_tilt,
     spacing_across_view,
     sphere_spacing,
@@ -465,6 +467,28 @@ def test_plate_tilt_reads_how_the_plate_layer_climbs_across_the_window(climb):
     y = np.r_[450.0 - 30.0 * resting, 450.0 - 30.0 * (resting + 0.87)]
     assert plate_tilt(np.r_[x, x], y, window) == pytest.approx(climb, abs=0.02)
     assert np.isnan(plate_tilt(x[:6], y[:6], window))
+
+
+def test_level_reading_gives_its_own_error_and_the_check_judges_the_least_climb():
+    """Frames that agree give a reading with no error; frames whose plate layer scatters give a
+    large one, and window_level judges the reading less LEVEL_SIGMAS errors (a noisy look's reading
+    is not a turned camera); fewer than LEVEL_FRAMES frames are not read."""
+    window = (0.0, 0.0, 300.0, 450.0)
+    x = np.tile(np.arange(15.0, 300.0, 30.0), 3) + np.repeat([0.0, 5.0, 9.0], 10)
+    rng = np.random.default_rng(1)
+
+    def frame(climb, scatter):
+        resting = 0.5 + climb * (x - 150.0) / 300.0 + scatter * rng.standard_normal(len(x))
+        return x, 450.0 - 30.0 * np.clip(resting, 0.31, 1.19)
+
+    tilt, error = level_reading([frame(0.15, 0.0)] * 8, window)
+    assert tilt == pytest.approx(0.15, abs=0.02) and error == pytest.approx(0.0, abs=1e-12)
+    assert not quality._level_check((tilt, error, 1.0))[0].passed
+    tilt, error = level_reading([frame(0.0, 0.25) for _ in range(8)], window)
+    assert error > 0.02
+    (check,) = quality._level_check((0.12, error, 1.0))
+    assert check.value == pytest.approx(0.12 - LEVEL_SIGMAS * error) and check.passed
+    assert np.isnan(level_reading([frame(0.15, 0.0)] * 2, window)[0])
 
 
 def test_a_camera_not_level_is_flagged(tmp_path):

@@ -50,7 +50,7 @@ from granseg.measure.quality import (
     Quality,
     QualityWarning,
     assess,
-    plate_tilt,
+    level_reading,
     spacing_across_view,
     sphere_spacing,
     vacancies,
@@ -1090,12 +1090,13 @@ def _walls_by_row(spheres: list, window: tuple[float, float, float, float]) -> n
     return lines
 
 
-def _level(sample: list[FrameSpheres], window: tuple[float, float, float, float]) -> tuple[float, float]:
+def _level(sample: list[FrameSpheres], window: tuple[float, float, float, float]) -> tuple[float, float, float]:
     """How much higher [d] the plate's layer lies at the window's right end than at its left, over the
-    frames ``sample`` (:func:`quality.plate_tilt`), and the angle [deg] that turns the view by."""
-    tilt = plate_tilt(np.concatenate([s.x for s in sample]), np.concatenate([s.y for s in sample]), window)
+    frames ``sample``, the reading's error (:func:`quality.level_reading`), and the angle [deg] that
+    turns the view by."""
+    tilt, error = level_reading([(s.x, s.y) for s in sample], window)
     layer_px = (window[3] - window[1]) / N_LAYERS
-    return tilt, float(np.degrees(np.arctan2(tilt * layer_px, window[2] - window[0])))
+    return tilt, error, float(np.degrees(np.arctan2(tilt * layer_px, window[2] - window[0])))
 
 
 # Frames searched for vacancies and measured for the spheres' spacing, evenly
