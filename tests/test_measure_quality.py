@@ -489,6 +489,9 @@ def test_level_reading_gives_its_own_error_and_the_check_judges_the_least_climb(
     (check,) = quality._level_check((0.12, error, 1.0))
     assert check.value == pytest.approx(0.12 - LEVEL_SIGMAS * error) and check.passed
     assert np.isnan(level_reading([frame(0.15, 0.0)] * 2, window)[0])
+    # a reading whose error could not be read (most resamplings too few spheres) is not judged: no
+    # check, rather than a failed one
+    assert quality._level_check((0.3, float("nan"), 2.0)) == []
 
 
 def test_a_camera_not_level_is_flagged(tmp_path):
