@@ -52,6 +52,23 @@ def _move(folder: Path, first: int, dy: float) -> None:
             cv2.imwrite(str(f), moved)
 
 
+def _rise(folder: Path, first: int, rise: float, window: list[float]) -> None:
+    """Raise the lid by ``rise`` px in the frames of ``folder`` from the ``first``-th on, in place: the bed
+    dilated evenly, each row of the window lifted in proportion to its height above the plate line
+    (``window``'s y1), the lid and all above it by ``rise``; the plate and below stay."""
+    frames = sorted(p for p in folder.iterdir() if p.suffix.lower() in STILLS)
+    y0, y1 = window[1], window[3]
+    for f in frames[first:]:
+        img = cv2.imread(str(f), cv2.IMREAD_UNCHANGED)
+        h, w = img.shape[:2]
+        y = np.arange(h, dtype=np.float32)
+        lift = rise * np.clip((y1 - y) / (y1 - y0), 0.0, 1.0)
+        map_y = np.repeat((y + lift)[:, None], w, axis=1).astype(np.float32)
+        map_x = np.repeat(np.arange(w, dtype=np.float32)[None, :], h, axis=0)
+        risen = cv2.remap(img, map_x, map_y, interpolation=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        cv2.imwrite(str(f), risen, [cv2.IMWRITE_JPEG_QUALITY, 95] if f.suffix.lower() in (".jpg", ".jpeg") else [])
+
+
 def _turn(folder: Path, degrees: float) -> None:
     """Turn every frame of ``folder`` by ``degrees`` (counter-clockwise) about its centre, in place."""
     for f in sorted(p for p in folder.iterdir() if p.suffix.lower() in STILLS):
@@ -69,16 +86,17 @@ def _read(source, truth, rows: slice, judged: str = "view_steady") -> dict:
     checks = {c.name: c for c in a.quality.checks}
     check = checks.get(judged)
     n, n_true = a.n[rows], truth.n[rows]
-    level = checks.get("window_level")
-    return {judged: None if check is None else round(check.value, 4),
+    figures = {name: None if checks.get(name) is None else round(checks[name].value, 4)
+               for name in ("view_steady", "window_level", "bed_steady")}
+    return {**figures, judged: None if check is None else round(check.value, 4),
             "flagged": bool(check is not None and not check.passed),
-            "window_level": None if level is None else round(level.value, 4),
             "other_failed": [c.name for c in a.quality.failed if c.name != judged],
             "counts_moved_rows": round(float(np.nanmean(np.abs(n - n_true) / np.maximum(n_true, 1))), 4),
             "c_raw_rmsd_moved_rows": round(float(np.sqrt(np.nanmean((a.c_raw[rows] - truth.c_raw[rows]) ** 2))), 4)}
 
 
-def run(scene: str, seed: int, frames: int, moves: list[float], turns: list[float], work: Path) -> dict:
+def run(scene: str, seed: int, frames: int, moves: list[float], turns: list[float], work: Path,
+        rises: list[float] = ()) -> dict:
     base = work / f"{scene}-{seed}"
     truth = render_scene(scene, frames, seed=seed, out_dir=base)
     rows = slice(frames // 2, frames)
@@ -91,6 +109,12 @@ def run(scene: str, seed: int, frames: int, moves: list[float], turns: list[floa
             shutil.copytree(base, moved)
             _move(moved, frames // 2, dy)
             out[f"moved {dy:+g} px ({dy / d:+.3f} d)"] = _read(moved, truth, rows)
+        for dy in rises:
+            risen = work / f"{scene}-{seed}-risen"
+            shutil.rmtree(risen, ignore_errors=True)
+            shutil.copytree(base, risen)
+            _rise(risen, frames // 2, dy, truth.experiment["window"])
+            out[f"lid up {dy:g} px ({dy / d:.3f} d)"] = _read(risen, truth, rows, judged="bed_steady")
         for deg in turns:
             turned = work / f"{scene}-{seed}-turned"
             shutil.rmtree(turned, ignore_errors=True)
@@ -110,6 +134,8 @@ def main() -> None:
                     help="vertical moves [px, down positive] of the second half of the frames")
     ap.add_argument("--turns", nargs="*", type=float, default=[],
                     help="angles [deg, counter-clockwise] every frame is turned by, each in turn")
+    ap.add_argument("--rises", nargs="*", type=float, default=[],
+                    help="how far [px] the lid rises in the second half of the frames, the bed dilating evenly")
     ap.add_argument("--json", type=Path, default=None)
     args = ap.parse_args()
     scenes = scene_names() if args.scenes == ["all"] else args.scenes
@@ -117,11 +143,13 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         for scene in scenes:
             for seed in args.seeds:
-                r = run(scene, seed, args.frames, args.moves, args.turns, Path(tmp))
+                r = run(scene, seed, args.frames, args.moves, args.turns, Path(tmp), args.rises)
                 results[f"{scene} seed {seed}"] = r
                 for name, v in r.items():
-                    judged = "window_level" if name.startswith("turned") else "view_steady"
-                    level = "" if judged == "window_level" else f" window_level {v['window_level']}"
+                    judged = ("window_level" if name.startswith("turned") else
+                              "bed_steady" if name.startswith("lid up") else "view_steady")
+                    level = "".join(f" {k} {v[k]}" for k in ("view_steady", "window_level", "bed_steady")
+                                    if k != judged)
                     print(f"{scene:34s} {seed:3d} {name:26s} {judged} {v[judged]}"
                           f"{' FLAGGED' if v['flagged'] else ''}{level}  rows judged: counts {100 * v['counts_moved_rows']:.1f} %"
                           f" c_raw {v['c_raw_rmsd_moved_rows']:.3f}  other failed {v['other_failed']}", flush=True)
@@ -133,9 +161,13 @@ def main() -> None:
     if levels:
         print(f"as rendered: largest window_level {max(levels):.4f} over {len(levels)} runs; flagged "
               f"{sum('window_level' in r['as rendered']['other_failed'] for r in results.values())}")
+    beds = [r["as rendered"]["bed_steady"] for r in results.values() if r["as rendered"]["bed_steady"] is not None]
+    if beds:
+        print(f"as rendered: largest bed_steady {max(beds):.4f} over {len(beds)} runs; flagged "
+              f"{sum('bed_steady' in r['as rendered']['other_failed'] for r in results.values())}")
     if args.json:
         save_json(args.json, {"command": " ".join(sys.argv), "frames": args.frames,
-                              "moves_px": args.moves, "turns_deg": args.turns, "results": results}, force=True)
+                              "moves_px": args.moves, "turns_deg": args.turns, "rises_px": args.rises, "results": results}, force=True)
 
 
 if __name__ == "__main__":

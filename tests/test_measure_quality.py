@@ -37,6 +37,7 @@ from granseg.measure.experiment import load_experiment
 from granseg.measure.exposure import DRIFT_LIMIT
 from granseg.measure.init import _camera as init_camera
 from granseg.measure.quality import (
+    BED_RISE_SLACK,
     LENS_HINT,
     LENS_SLACK,
     LENS_SPHERES,
@@ -49,6 +50,7 @@ from granseg.measure.quality import (
     Quality,
     WallLines,
     assess,
+    bed_rise,
     level_reading,
     plate_tilt,
     spacing_across_view,
@@ -455,6 +457,53 @@ def test_a_camera_moved_during_the_run_is_flagged(tmp_path):
     check = {c.name: c for c in moved.quality.checks}["view_steady"]
     assert not check.passed and check.value > VIEW_MOVE_SLACK and "map row" in check.about
     assert "granseg init" in quality.ADVICE["view_steady"]
+
+
+def test_bed_rise_is_the_lid_moving_against_the_plate():
+    """A lid that rises (the bed dilates) shrinks the lid's reading alone: the bed's height grows by
+    that much; a settling bed is a fall; a move of the whole view, a frame's glitch or the bottom
+    layer riding the plate's bumps for a few frames changes no height."""
+    rng = np.random.default_rng(2)
+    still = np.column_stack([0.01 + 0.005 * rng.standard_normal(40), 0.02 + 0.005 * rng.standard_normal(40)])
+    assert abs(bed_rise(still)[0]) < 0.01
+    lid_rises = still.copy()
+    lid_rises[20:, 1] -= 0.1  # the lid's spheres 0.1 d nearer the lid's line: the lid rose
+    rise, row = bed_rise(lid_rises)
+    assert rise == pytest.approx(0.1, abs=0.012) and row >= 19
+    settles = still.copy()
+    settles[20:, 1] += 0.08
+    assert bed_rise(settles)[0] == pytest.approx(-0.08, abs=0.012)
+    view_moves = still.copy()
+    view_moves[25:] += [-0.08, 0.08]
+    view_moves[10:14, 0] += 0.2
+    view_moves[30, :] += [-0.3, 0.4]
+    assert abs(bed_rise(view_moves)[0]) < 0.01
+    assert np.isnan(bed_rise(still[:2])[0])
+
+
+def test_a_lid_that_rises_during_the_run_is_flagged(tmp_path):
+    """The bed above the plate stretched so that the lid rises by a fifth of a diameter in the second
+    half of the frames (the bed dilating under shear): the upper rows are binned by lines the layers
+    have left, and bed_steady says so, not view_steady; as rendered, it passes."""
+    r = render_scene("S-PP-75", 12, seed=9, out_dir=tmp_path / "frames", **SMALL)
+    as_rendered = analyze(r.source, save=False, progress=False, workers=2)
+    assert {c.name: c for c in as_rendered.quality.checks}["bed_steady"].passed
+    frames = sorted(Path(r.source).glob("*.png"))
+    y0, y1 = r.experiment["window"][1], r.experiment["window"][3]
+    h, w = cv2.imread(str(frames[0])).shape[:2]
+    y = np.arange(h, dtype=np.float32)
+    lift = 0.2 * SMALL["particle_diameter_px"] * np.clip((y1 - y) / (y1 - y0), 0.0, 1.0)
+    map_y = np.repeat((y + lift)[:, None], w, axis=1).astype(np.float32)
+    map_x = np.repeat(np.arange(w, dtype=np.float32)[None, :], h, axis=0)
+    for f in frames[6:]:
+        cv2.imwrite(str(f), cv2.remap(cv2.imread(str(f)), map_x, map_y, cv2.INTER_LINEAR,
+                                      borderMode=cv2.BORDER_REPLICATE))
+    with pytest.warns(QualityWarning, match="bed_steady"):
+        risen = analyze(r.source, save=False, progress=False, workers=2)
+    checks = {c.name: c for c in risen.quality.checks}
+    assert not checks["bed_steady"].passed and checks["bed_steady"].value > BED_RISE_SLACK
+    assert "rose" in checks["bed_steady"].about and checks["view_steady"].passed
+    assert "bed_steady" in quality.ADVICE
 
 
 @pytest.mark.parametrize("climb", [0.15, -0.15, 0.0])
