@@ -433,6 +433,9 @@ def test_view_move_is_what_both_walls_do_together():
     lid_rises = still.copy()
     lid_rises[20:, 1] -= 0.1
     assert view_move(lid_rises)[0] < 0.01
+    ride_at_end = lid_rises.copy()
+    ride_at_end[-3:, 0] += 0.18  # the plate's layer rides its bumps in the last frames, the lid risen
+    assert view_move(ride_at_end)[0] < 0.01
     gaps = knocked.copy()
     gaps[::2] = np.nan  # rows without a reading are left out; the row named is the map's
     move, row = view_move(gaps)

@@ -128,7 +128,8 @@ WALL_LINE_SLACK = 0.1
 # frame's walls are read as the first frame's (wall_lines), each wall's reading smoothed by the
 # median of the frames within VIEW_MOVE_REACH rows, and the view's move is what the two walls
 # do together from the first frames: the smaller of the two moves where they agree in direction,
-# else none. One wall alone is not taken for the view: the layer resting on the moving plate
+# else none, held over as many rows (a knocked camera stays moved; VIEW_MOVE_REACH rows either
+# side). One wall alone is not taken for the view: the layer resting on the moving plate
 # rides its bumps (the 2-D bumpy scene's plate reading jumps by 0.2 d for four frames), and a lid
 # that rises with the bed is the lid, not the camera. The limit: a move of 0.05 d on its own took
 # the later frames' counts 3.5 % off and their c_raw 0.030 (S-PP-75, seed 7), the targets the
@@ -318,7 +319,8 @@ ADVICE = {
                   "lid moves once, as the shear starts, leave out the frames before it has settled and draw "
                   "the window's lid line on a frame after (granseg init-experiment); where it keeps moving, "
                   "the window's fixed layers cannot follow the bed: analyse the stretches between the moves as "
-                  "separate recordings",
+                  "separate recordings. If view_steady fails too, mend that first: the lid is read against the "
+                  "view's move",
     "window_level": "the camera is not level: the spheres resting on the plate climb across the window by the "
                     "figure given (diameters), so the window's lines meet the walls at one end and miss them at "
                     "the other, and the layers are binned aslant. Level the camera, or turn the frames by the "
@@ -592,15 +594,30 @@ def view_move(lines: np.ndarray) -> tuple[float, int]:
     readings are smoothed by their median over VIEW_MOVE_REACH rows either
     side, and the move of a row is the smaller of the two walls' moves from
     the first row's where both go the same way in the image (down: the lid's
-    offset grows, the plate's shrinks), else 0. (NaN, 0) with fewer than 3
-    such rows.
+    offset grows, the plate's shrinks), else 0, held: the least over the
+    2 VIEW_MOVE_REACH + 1 rows around it (:func:`_held`). (NaN, 0) with fewer
+    than 3 such rows.
     """
     rows, steady = _steady_walls(lines)
     if len(rows) < 3:
         return float("nan"), 0
-    both = np.abs(_view_shift(steady))
+    both = _held(np.abs(_view_shift(steady)), VIEW_MOVE_REACH)
     most = int(np.argmax(both))
     return float(both[most]), int(rows[most])
+
+
+def _held(values: np.ndarray, k: int) -> np.ndarray:
+    """The least of ``values`` over the 2 k + 1 rows around each row, the run of rows kept whole inside
+    the series (at its ends it is shifted, not shortened): a knocked camera stays moved, whereas a
+    few rows' excursion is not a move. Without the hold, the layer on the bumpy plate riding its
+    bumps in the last three frames, while the lid had risen, moved both walls up alike there and
+    read as a move of 0.05-0.15 d (bumps-S-PP, held-out seed 10, the lid risen; BENCHMARKS.md, "A
+    lid that rises during the run")."""
+    n, w = len(values), 2 * k + 1
+    if n <= w:
+        return np.full(n, float(np.min(values)))
+    starts = np.clip(np.arange(n) - k, 0, n - w)
+    return np.lib.stride_tricks.sliding_window_view(values, w).min(axis=1)[starts]
 
 
 def _view_shift(steady: np.ndarray) -> np.ndarray:
