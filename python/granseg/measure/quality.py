@@ -653,8 +653,11 @@ def _steady_walls(lines: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     moving plate rides its bumps)."""
     lines = np.asarray(lines, dtype=float).reshape(-1, 2)
     rows = np.flatnonzero(np.isfinite(lines).all(axis=1))
-    read, k = lines[rows], VIEW_MOVE_REACH
-    steady = np.array([np.median(read[max(0, i - k):i + k + 1], axis=0) for i in range(len(read))])
+    k = VIEW_MOVE_REACH
+    if len(rows) == 0:
+        return rows, np.empty((0, 2))
+    padded = np.pad(lines[rows], ((k, k), (0, 0)), constant_values=np.nan)  # windows shrink at the ends
+    steady = np.nanmedian(np.lib.stride_tricks.sliding_window_view(padded, 2 * k + 1, axis=0), axis=-1)
     return rows, steady.reshape(-1, 2)
 
 
