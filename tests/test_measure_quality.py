@@ -506,6 +506,7 @@ def test_a_lid_that_rises_during_the_run_is_flagged(tmp_path):
     checks = {c.name: c for c in risen.quality.checks}
     assert not checks["bed_steady"].passed and checks["bed_steady"].value > BED_RISE_SLACK
     assert "rose" in checks["bed_steady"].about and checks["view_steady"].passed
+    assert risen.quality.figures["bed_rise_d"] == pytest.approx(0.2, abs=0.05)
     assert "bed_steady" in quality.ADVICE
 
 

@@ -443,8 +443,10 @@ def assess(*, n: np.ndarray, n_heavy: np.ndarray, c0: float, first_heights: np.n
     distortion off (if not, window_lines may name the lens: LENS_HINT); None:
     not checked;
     view_lines: (n_t, 2) each row's walls as :func:`wall_lines` reads them
-    (plate, lid; NaN rows without a reading), for the view_steady check
-    (:func:`view_move`; None: not checked);
+    (plate, lid; NaN rows without a reading), for the view_steady and
+    bed_steady checks (:func:`view_move`, :func:`bed_rise`; the figure
+    ``bed_rise_d`` keeps the signed change, positive where the lid rose;
+    None: not checked);
     level: how much higher [d] the layer resting on the plate lies at the
     window's right end than at its left, the reading's error
     (:func:`level_reading`), and the angle [deg] by which that turns the
@@ -502,6 +504,9 @@ def assess(*, n: np.ndarray, n_heavy: np.ndarray, c0: float, first_heights: np.n
     if level is not None:
         figures["window_level_d"] = float(level[0]) if np.isfinite(level[0]) else None
         figures["window_level_error_d"] = float(level[1]) if np.isfinite(level[1]) else None
+    if view_lines is not None:
+        rise = bed_rise(view_lines)[0]
+        figures["bed_rise_d"] = float(rise) if np.isfinite(rise) else None
     if walls is not None:
         figures["window_lines_d"] = {k: float(v) if np.isfinite(v) else None  # None: too few spheres there
                                      for k, v in (("plate", walls.plate), ("lid", walls.lid))}
