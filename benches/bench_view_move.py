@@ -1,4 +1,4 @@
-"""A view that moves during the run, or is turned: the `view_steady` and `window_level` checks (issue 9).
+"""A view that moves during the run, is turned, or a lid that rises: `view_steady`, `window_level`, `bed_steady`.
 
 `window_lines` reads the walls in the first frame only. A camera knocked (or a
 cell that shifts) halfway through a run moves every later frame against the
@@ -14,7 +14,10 @@ truth of the frames as rendered, which the window was drawn for):
 
 ``--turns`` also analyses the run with every frame turned by each angle [deg,
 counter-clockwise] about the image's centre: a camera that is not level (the
-`window_level` check; counts and c_raw then over every row).
+`window_level` check; counts and c_raw then over every row). ``--rises`` [px]
+raises the lid in the second half of the frames, the bed stretched evenly above
+the plate (a bed that dilates under shear: the `bed_steady` check). The frames
+are altered by :mod:`granseg.synth.mishaps`, as the tests alter theirs.
 
 Moves are applied to frames saved as stills; scenes rendered as video are read
 as rendered only. No truth is read by `analyze`; the truth only scores the map.
@@ -29,54 +32,12 @@ import tempfile
 import warnings
 from pathlib import Path
 
-import cv2
 import numpy as np
 
 from granseg._io import save_json
 from granseg.measure import analyze
+from granseg.synth.mishaps import move_view, raise_lid, turn_view
 from granseg.synth.scenes import render_scene, scene_names
-
-STILLS = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp")
-
-
-def _move(folder: Path, first: int, dy: float) -> None:
-    """Shift the frames of ``folder`` from the ``first``-th on by ``dy`` px (down positive), in place."""
-    frames = sorted(p for p in folder.iterdir() if p.suffix.lower() in STILLS)
-    shift = np.float32([[1, 0, 0], [0, 1, dy]])
-    for f in frames[first:]:
-        img = cv2.imread(str(f), cv2.IMREAD_UNCHANGED)
-        moved = cv2.warpAffine(img, shift, img.shape[1::-1], flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-        if f.suffix.lower() in (".jpg", ".jpeg"):
-            cv2.imwrite(str(f), moved, [cv2.IMWRITE_JPEG_QUALITY, 95])
-        else:
-            cv2.imwrite(str(f), moved)
-
-
-def _rise(folder: Path, first: int, rise: float, window: list[float]) -> None:
-    """Raise the lid by ``rise`` px in the frames of ``folder`` from the ``first``-th on, in place: the bed
-    dilated evenly, each row of the window lifted in proportion to its height above the plate line
-    (``window``'s y1), the lid and all above it by ``rise``; the plate and below stay."""
-    frames = sorted(p for p in folder.iterdir() if p.suffix.lower() in STILLS)
-    y0, y1 = window[1], window[3]
-    for f in frames[first:]:
-        img = cv2.imread(str(f), cv2.IMREAD_UNCHANGED)
-        h, w = img.shape[:2]
-        y = np.arange(h, dtype=np.float32)
-        lift = rise * np.clip((y1 - y) / (y1 - y0), 0.0, 1.0)
-        map_y = np.repeat((y + lift)[:, None], w, axis=1).astype(np.float32)
-        map_x = np.repeat(np.arange(w, dtype=np.float32)[None, :], h, axis=0)
-        risen = cv2.remap(img, map_x, map_y, interpolation=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-        cv2.imwrite(str(f), risen, [cv2.IMWRITE_JPEG_QUALITY, 95] if f.suffix.lower() in (".jpg", ".jpeg") else [])
-
-
-def _turn(folder: Path, degrees: float) -> None:
-    """Turn every frame of ``folder`` by ``degrees`` (counter-clockwise) about its centre, in place."""
-    for f in sorted(p for p in folder.iterdir() if p.suffix.lower() in STILLS):
-        img = cv2.imread(str(f), cv2.IMREAD_UNCHANGED)
-        h, w = img.shape[:2]
-        turn = cv2.getRotationMatrix2D((w / 2, h / 2), degrees, 1.0)
-        turned = cv2.warpAffine(img, turn, (w, h), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-        cv2.imwrite(str(f), turned, [cv2.IMWRITE_JPEG_QUALITY, 95] if f.suffix.lower() in (".jpg", ".jpeg") else [])
 
 
 def _read(source, truth, rows: slice, judged: str = "view_steady") -> dict:
@@ -107,19 +68,19 @@ def run(scene: str, seed: int, frames: int, moves: list[float], turns: list[floa
             moved = work / f"{scene}-{seed}-moved"
             shutil.rmtree(moved, ignore_errors=True)
             shutil.copytree(base, moved)
-            _move(moved, frames // 2, dy)
+            move_view(moved, dy, first=frames // 2)
             out[f"moved {dy:+g} px ({dy / d:+.3f} d)"] = _read(moved, truth, rows)
         for dy in rises:
             risen = work / f"{scene}-{seed}-risen"
             shutil.rmtree(risen, ignore_errors=True)
             shutil.copytree(base, risen)
-            _rise(risen, frames // 2, dy, truth.experiment["window"])
+            raise_lid(risen, dy, truth.experiment["window"], first=frames // 2)
             out[f"lid up {dy:g} px ({dy / d:.3f} d)"] = _read(risen, truth, rows, judged="bed_steady")
         for deg in turns:
             turned = work / f"{scene}-{seed}-turned"
             shutil.rmtree(turned, ignore_errors=True)
             shutil.copytree(base, turned)
-            _turn(turned, deg)
+            turn_view(turned, deg)
             out[f"turned {deg:+g} deg"] = _read(turned, truth, slice(0, frames), judged="window_level")
     shutil.rmtree(base, ignore_errors=True)
     return out

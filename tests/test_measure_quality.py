@@ -8,7 +8,6 @@ import re
 import warnings
 from pathlib import Path
 
-import cv2
 import numpy as np
 import pytest
 
@@ -61,6 +60,7 @@ from granseg.measure.quality import (
 )
 from granseg.measure.sources import open_frames
 from granseg.synth import render_frames
+from granseg.synth.mishaps import move_view, raise_lid, turn_view
 from granseg.synth.scenes import render_scene
 
 SMALL = dict(particle_diameter_px=20, image_size=(400, 480))
@@ -449,12 +449,8 @@ def test_a_camera_moved_during_the_run_is_flagged(tmp_path):
     r = render_scene("S-PP-75", 12, seed=9, out_dir=tmp_path / "frames", **SMALL)
     as_rendered = analyze(r.source, save=False, progress=False, workers=2)
     assert {c.name: c for c in as_rendered.quality.checks}["view_steady"].passed
-    frames = sorted(Path(r.source).glob("*.png"))
-    assert len(frames) == 12
-    down = np.float32([[1, 0, 0], [0, 1, 0.1 * SMALL["particle_diameter_px"]]])
-    for f in frames[6:]:
-        img = cv2.imread(str(f))
-        cv2.imwrite(str(f), cv2.warpAffine(img, down, img.shape[1::-1], borderMode=cv2.BORDER_REPLICATE))
+    assert len(list(Path(r.source).glob("*.png"))) == 12
+    move_view(r.source, 0.1 * SMALL["particle_diameter_px"], first=6)
     with pytest.warns(QualityWarning, match="view_steady"):
         moved = analyze(r.source, save=False, progress=False, workers=2)
     check = {c.name: c for c in moved.quality.checks}["view_steady"]
@@ -491,16 +487,7 @@ def test_a_lid_that_rises_during_the_run_is_flagged(tmp_path):
     r = render_scene("S-PP-75", 12, seed=9, out_dir=tmp_path / "frames", **SMALL)
     as_rendered = analyze(r.source, save=False, progress=False, workers=2)
     assert {c.name: c for c in as_rendered.quality.checks}["bed_steady"].passed
-    frames = sorted(Path(r.source).glob("*.png"))
-    y0, y1 = r.experiment["window"][1], r.experiment["window"][3]
-    h, w = cv2.imread(str(frames[0])).shape[:2]
-    y = np.arange(h, dtype=np.float32)
-    lift = 0.2 * SMALL["particle_diameter_px"] * np.clip((y1 - y) / (y1 - y0), 0.0, 1.0)
-    map_y = np.repeat((y + lift)[:, None], w, axis=1).astype(np.float32)
-    map_x = np.repeat(np.arange(w, dtype=np.float32)[None, :], h, axis=0)
-    for f in frames[6:]:
-        cv2.imwrite(str(f), cv2.remap(cv2.imread(str(f)), map_x, map_y, cv2.INTER_LINEAR,
-                                      borderMode=cv2.BORDER_REPLICATE))
+    raise_lid(r.source, 0.2 * SMALL["particle_diameter_px"], r.experiment["window"], first=6)
     with pytest.warns(QualityWarning, match="bed_steady"):
         risen = analyze(r.source, save=False, progress=False, workers=2)
     checks = {c.name: c for c in risen.quality.checks}
@@ -553,11 +540,7 @@ def test_a_camera_not_level_is_flagged(tmp_path):
     r = render_scene("S-PP-75", 6, seed=9, out_dir=tmp_path / "frames", **SMALL)
     as_rendered = analyze(r.source, save=False, progress=False, workers=2)
     assert {c.name: c for c in as_rendered.quality.checks}["window_level"].passed
-    for f in sorted(Path(r.source).glob("*.png")):
-        img = cv2.imread(str(f))
-        h, w = img.shape[:2]
-        turn = cv2.getRotationMatrix2D((w / 2, h / 2), 1.5, 1.0)
-        cv2.imwrite(str(f), cv2.warpAffine(img, turn, (w, h), borderMode=cv2.BORDER_REPLICATE))
+    turn_view(r.source, 1.5)
     with pytest.warns(QualityWarning, match="window_level"):
         turned = analyze(r.source, save=False, progress=False, workers=2)
     check = {c.name: c for c in turned.quality.checks}["window_level"]
