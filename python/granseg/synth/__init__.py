@@ -10,7 +10,9 @@ measured under a named noise process (``NOISE_PROCESSES``, ``NoiseProcess``);
 materials, grey-on-grey pairs) and
 ``APPARATUS_SCENES`` (bumpy lid and plate, motion blur, wall reflections,
 dust, wide-angle lens, JPEG and video) the harder looks it must yet handle;
-``render_scene(name, n_t)`` renders any of them.
+``render_scene(name, n_t)`` renders any of them;
+:mod:`granseg.synth.mishaps` alters rendered stills as a rig can go wrong
+during a run (the view moved or turned, the lid risen).
 """
 
 from __future__ import annotations
