@@ -639,7 +639,10 @@ def bed_rise(lines: np.ndarray) -> tuple[float, int]:
     """How far [d] the bed's height changed during the run (positive: the lid rose, the bed dilated;
     negative: it settled), at the map row where it had changed most, from each row's walls as
     :func:`view_move` reads them: how far the layer under the lid moved up in the image since the
-    first row, less the view's own move. The plate's reading enters only through the view's move
+    first row, less the view's own move, held as :func:`view_move` holds a move (at the end of a
+    run whose view had moved, the bumpy plate's ride in the last frames made the two walls
+    disagree, so that the view's move read 0 there and the lid's move counted as the bed's:
+    bumps-S-PP, held-out seed 10, 0.099 d). The plate's reading enters only through the view's move
     (the smaller of the two walls' moves): the layer resting on the moving plate rides its bumps
     and smears with its blur, and a difference of the two walls' readings took that for the bed
     (BENCHMARKS.md, "A lid that rises during the run"). (NaN, 0) with fewer than 3 rows reading
@@ -648,8 +651,9 @@ def bed_rise(lines: np.ndarray) -> tuple[float, int]:
     if len(rows) < 3:
         return float("nan"), 0
     change = _view_shift(steady) - (steady[:, 1] - steady[0, 1])
-    most = int(np.argmax(np.abs(change)))
-    return float(change[most]), int(rows[most])
+    held = _held(np.abs(change), VIEW_MOVE_REACH)  # a bed that dilated stays so, as a knocked camera stays moved
+    most = int(np.argmax(held))
+    return float(np.sign(change[most]) * held[most]), int(rows[most])
 
 
 def _steady_walls(lines: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
