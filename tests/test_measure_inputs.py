@@ -536,8 +536,14 @@ def test_a_tiff_stack_gives_the_map_of_its_frames(frames, tmp_path, bits, compre
     np.testing.assert_array_equal(b.n, a.n)
     np.testing.assert_array_equal(b.c_raw, a.c_raw)
     np.testing.assert_allclose(b.t, a.t)
-    half = analyze(stack, every=2, save=False, progress=False)
-    np.testing.assert_array_equal(half.n, a.n[::2])
+    # every other page is every other frame; against the folder read so, since the classes' shift
+    # (outline.class_shift) read from half the frames may differ from the whole run's (0.17 px from
+    # 188 pairs, none taken off from 91 on an AMD EPYC machine, OpenCV 5.1) and move a sphere across
+    # a row's line
+    half, half_frames = (analyze(d, every=2, save=False, progress=False) for d in (stack, frames))
+    assert len(half.n) == 2 and half.frame_names == ["run.tif#0", "run.tif#2"]
+    np.testing.assert_array_equal(half.n, half_frames.n)
+    np.testing.assert_array_equal(half.c_raw, half_frames.c_raw)
 
 
 def test_an_imagej_stack_tells_its_frame_rate(frames, tmp_path, capsys):

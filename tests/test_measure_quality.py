@@ -35,6 +35,7 @@ from granseg.measure.classify import (
 from granseg.measure.experiment import load_experiment
 from granseg.measure.exposure import DRIFT_LIMIT
 from granseg.measure.init import _camera as init_camera
+from granseg.measure.layers import followed_window
 from granseg.measure.quality import (
     BED_RISE_SLACK,
     LENS_HINT,
@@ -56,6 +57,7 @@ from granseg.measure.quality import (
     sphere_spacing,
     vacancies,
     view_move,
+    wall_follow,
     wall_lines,
 )
 from granseg.measure.sources import open_frames
@@ -443,6 +445,43 @@ def test_view_move_is_what_both_walls_do_together():
     assert np.isnan(view_move(still[:2])[0]) and np.isnan(view_move(np.full((9, 2), np.nan))[0])
 
 
+def test_the_window_follows_what_the_checks_read():
+    """wall_follow moves each row's window as far as view_move and bed_rise read a move where its
+    check fails: from the step's first row on (the hold alone lags it), the view's move where both
+    walls go together, the lid's against the plate where the lid alone goes; a few rows' excursion
+    is not followed, nor a move the check passes."""
+    rng = np.random.default_rng(3)
+    still = np.column_stack([0.01 + 0.005 * rng.standard_normal(40), 0.02 + 0.005 * rng.standard_normal(40)])
+    assert np.abs(wall_follow(still)).max() < 0.01
+    lines = still.copy()
+    lines[25:] += [-0.08, 0.08]  # the view moved down by 0.08 d from row 25 on
+    lines[30:, 1] += 0.1  # and the lid fell (the bed settled) by 0.1 d from row 30 on
+    lines[10:14, 0] += 0.2  # the plate's layer riding its bumps for four frames
+    lines[5, :] += [-0.3, 0.3]  # one frame's glitch
+    follow = wall_follow(lines)
+    assert np.abs(follow[:25]).max() < 0.012
+    assert follow[25:, 0] == pytest.approx(0.08, abs=0.012)
+    assert np.abs(follow[25:30, 1]).max() < 0.012 and follow[30:, 1] == pytest.approx(-0.1, abs=0.012)
+    slight = still.copy()
+    slight[25:] += [-0.04, 0.04]  # a move under the check's slack is not followed: nor is noise
+    slight[30:, 1] -= 0.06
+    assert not wall_follow(slight).any()
+    rises = still.copy()
+    rises[20:, 1] -= 0.1  # the lid alone rose
+    assert np.abs(wall_follow(rises)[:, 0]).max() < 0.012 and wall_follow(rises)[20:, 1] == pytest.approx(0.1, abs=0.012)
+    gaps = lines.copy()
+    gaps[27] = np.nan  # a row without a reading follows its neighbours
+    assert wall_follow(gaps)[27] == pytest.approx(follow[27], abs=0.012)
+    assert not wall_follow(still[:2]).any() and wall_follow(still[:2]).shape == (2, 2)
+    window = (10.0, 100.0, 310.0, 400.0)  # 20 px a layer
+    assert followed_window(window, 0.5, 0.0) == (10.0, 110.0, 310.0, 410.0)
+    assert followed_window(window, 0.0, 0.5) == (10.0, 90.0, 310.0, 400.0)
+
+
+def _counts_off(n: np.ndarray, n_true: np.ndarray) -> float:
+    return float(np.mean(np.abs(n - n_true) / np.maximum(n_true, 1)))
+
+
 def test_a_camera_moved_during_the_run_is_flagged(tmp_path):
     """The frames' second half moved down by a tenth of a diameter (a camera knocked): the map's
     later rows are binned by lines off the walls, and view_steady says so; as rendered, it passes."""
@@ -455,7 +494,16 @@ def test_a_camera_moved_during_the_run_is_flagged(tmp_path):
         moved = analyze(r.source, save=False, progress=False, workers=2)
     check = {c.name: c for c in moved.quality.checks}["view_steady"]
     assert not check.passed and check.value > VIEW_MOVE_SLACK and "map row" in check.about
-    assert "granseg init" in quality.ADVICE["view_steady"]
+    assert "granseg init-experiment" in quality.ADVICE["view_steady"]
+    assert "--follow-walls" in quality.ADVICE["view_steady"]
+    # counted in windows that follow the walls, the moved rows come back to the truth, and the
+    # check judges the lines as followed
+    followed = analyze(r.source, save=False, progress=False, workers=2, follow_walls=True)
+    assert {c.name: c for c in followed.quality.checks}["view_steady"].passed
+    assert followed.quality.figures["view_followed_d"] == pytest.approx(0.1, abs=0.03)
+    assert followed.window_of(0) == tuple(followed.experiment.window) and followed.window_of(11)[1] > followed.window_of(0)[1]
+    off, left = _counts_off(moved.n[6:], r.n[6:]), _counts_off(followed.n[6:], r.n[6:])
+    assert left < 0.5 * off, (off, left)
 
 
 def test_bed_rise_is_the_lid_moving_against_the_plate():
@@ -496,7 +544,22 @@ def test_a_lid_that_rises_during_the_run_is_flagged(tmp_path):
     assert not checks["bed_steady"].passed and checks["bed_steady"].value > BED_RISE_SLACK
     assert "rose" in checks["bed_steady"].about and checks["view_steady"].passed
     assert risen.quality.figures["bed_rise_d"] == pytest.approx(0.2, abs=0.05)
-    assert "bed_steady" in quality.ADVICE
+    assert "--follow-walls" in quality.ADVICE["bed_steady"]
+    # the layer under the risen lid lies 0.3 d from the window's own line, where the lid's
+    # hemispheres are told from spheres (layers.WALL_CLEARANCE): left out as bumps, it empties the
+    # top row; followed, the lid line moves with the lid, the layer is told from the bumps by it
+    # and counted again
+    assert risen.n[6:, -1].max() <= 0.5 * r.n[6:, -1].min()
+    followed = analyze(r.source, save=False, progress=False, workers=2, follow_walls=True,
+                       detections=tmp_path / "found.csv")
+    assert followed.quality.ok, followed.quality.failed
+    with open(tmp_path / "found.csv", newline="", encoding="utf-8") as f:  # each row's layers as counted
+        rows = [(int(d["frame"]), int(d["layer"])) for d in csv.DictReader(f)]
+    np.testing.assert_array_equal(np.bincount([fr * 15 + j for fr, j in rows], minlength=12 * 15).reshape(12, 15),
+                                  followed.n)
+    assert followed.quality.figures["bed_followed_d"] == pytest.approx(0.2, abs=0.05)
+    off, left = _counts_off(risen.n[6:], r.n[6:]), _counts_off(followed.n[6:], r.n[6:])
+    assert left < 0.3 * off and left < 0.03, (off, left)
 
 
 @pytest.mark.parametrize("climb", [0.15, -0.15, 0.0])

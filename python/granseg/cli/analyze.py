@@ -46,6 +46,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="the run ends un-mixed (a large density ratio: heavy below c0 H, light above): learn "
                         "the classes from its last frame too, so that a look changing with height is not "
                         "taken for the material")
+    p.add_argument("--follow-walls", action="store_true",
+                   help="count each frame in a window whose lines follow the walls: moved with the view where "
+                        "the camera or cell moved during the run, and the lid line with the lid where the bed "
+                        "rose or settled (what the view_steady and bed_steady checks read)")
     p.add_argument("--reduce", metavar="K", type=int,
                    help="analyse the frames reduced K times (each pixel the mean of a K x K block; 1 = as they "
                         "are). Default: the largest K that leaves the spheres at least 40 px across")
@@ -71,7 +75,7 @@ def run(args: argparse.Namespace) -> int:
                          every=args.every, every_seconds=args.every_seconds, preview=args.preview,
                          preview_count=args.preview_count, force=args.force,
                          workers=args.workers, progress=not args.no_progress, detections=args.detections,
-                         ends_unmixed=args.ends_unmixed, reduce=args.reduce)
+                         ends_unmixed=args.ends_unmixed, reduce=args.reduce, follow_walls=args.follow_walls)
     for w in caught:
         print(f"warning: {w.message}")
     good = len(result.frame_names) - len(result.bad_frames)

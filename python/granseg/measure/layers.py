@@ -7,7 +7,7 @@ from scipy.spatial import cKDTree
 
 from granseg.constants import N_LAYERS
 
-__all__ = ["N_LAYERS", "WALL_CLEARANCE", "across", "clear_of_walls", "height", "in_window", "layer_index", "layer_counts",
+__all__ = ["N_LAYERS", "WALL_CLEARANCE", "across", "clear_of_walls", "followed_window", "height", "in_window", "layer_index", "layer_counts",
            "nearest_distances", "nearest_spacing"]
 
 # A free sphere's centre lies at least half a diameter from the lid and the
@@ -42,6 +42,16 @@ def height(y: np.ndarray, window: tuple[float, float, float, float], n_layers: i
     """Height of centres y [undistorted px] above the bottom wall (y1), in layer heights (diameters)."""
     _, y0, _, y1 = window
     return (y1 - np.asarray(y, dtype=float)) / ((y1 - y0) / n_layers)
+
+
+def followed_window(window: tuple[float, float, float, float], down: float, rise: float,
+                    n_layers: int = N_LAYERS) -> tuple[float, float, float, float]:
+    """``window`` with both its lines moved ``down`` layer heights down the image (negative: up), and
+    its lid line (y0) ``rise`` layer heights up besides (negative: down): the lines of a row whose
+    view had moved and whose lid had risen against the plate (quality.wall_follow)."""
+    x0, y0, x1, y1 = window
+    layer = (y1 - y0) / n_layers
+    return x0, y0 + (down - rise) * layer, x1, y1 + down * layer
 
 
 def across(x: np.ndarray, window: tuple[float, float, float, float]) -> np.ndarray:

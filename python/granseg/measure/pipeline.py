@@ -38,6 +38,7 @@ from granseg.measure.layers import (
     N_LAYERS,
     across,
     clear_of_walls,
+    followed_window,
     height,
     in_window,
     layer_counts,
@@ -54,6 +55,7 @@ from granseg.measure.quality import (
     spacing_across_view,
     sphere_spacing,
     vacancies,
+    wall_follow,
     wall_lines,
 )
 from granseg.measure.sources import (
@@ -101,7 +103,10 @@ class FrameSpheres:
     looks up to the sides with them), looked for up to reach = (left, right)
     [px] beyond them (0 where the image does not go on); wall_y: the
     centres' y [undistorted px] of the detections left out as hemispheres of
-    the lid or plate (``wall`` of them), which the window_lines check reads.
+    the lid or plate (``wall`` of them), which the window_lines check reads;
+    at_walls: those detections whole, described as the counted ones are (kept
+    only for analyze's ``follow_walls``, else None), which a window that
+    follows the walls tells from spheres again (:func:`_split_at_walls`).
     """
 
     x: np.ndarray
@@ -120,6 +125,7 @@ class FrameSpheres:
     beside: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
     reach: tuple[float, float] = (0.0, 0.0)
     wall_y: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    at_walls: FrameSpheres | None = None
 
 
 @dataclass
@@ -133,7 +139,10 @@ class Analysis:
     quality: the checks of :mod:`granseg.measure.quality` (also stored in the map);
     classes: the learned heavy / light classifier (None with colour ranges);
     first, every: the map's row i is the recording's frame first + i x every (first > 0 where the
-    recording started before the plate, a negative ``t0``).
+    recording started before the plate, a negative ``t0``);
+    follow: (n_t, 2) how far [d] each row's window was moved with the walls (the view's move down,
+    the lid's rise against the plate; quality.wall_follow), or None: every row counted in the
+    experiment's window.
     """
 
     c: np.ndarray
@@ -154,6 +163,14 @@ class Analysis:
     detections: Path | None = None
     first: int = 0
     every: int = 1
+    follow: np.ndarray | None = None
+
+    def window_of(self, i: int) -> tuple[float, float, float, float]:
+        """The window map row ``i`` was counted in: the experiment's, or with ``follow`` (analyze's
+        ``follow_walls``) its lines moved with the walls (layers.followed_window)."""
+        if self.follow is None:
+            return self.experiment.window
+        return followed_window(self.experiment.window, *self.follow[i])
 
 
 def analyze(
@@ -173,6 +190,7 @@ def analyze(
     detections: str | os.PathLike | None = None,
     ends_unmixed: bool = False,
     reduce: int | None = None,
+    follow_walls: bool = False,
 ) -> Analysis:
     """Measure the heavy-concentration map of an experiment from its frames.
 
@@ -220,6 +238,14 @@ def analyze(
         whole factor that leaves the spheres REDUCED_DIAMETER_PX or more
         across (:func:`analysis_reduction`). Centres and radii are returned
         in the frames' own pixels either way.
+    follow_walls : count each map row in a window whose lines follow the walls:
+        moved as far as the view had moved since the first frames (a knocked
+        camera, a cell that shifted) and its lid line as far as the lid had
+        risen against the plate (a bed that dilated), as the ``view_steady``
+        and ``bed_steady`` checks read them (quality.wall_follow). The checks
+        then judge the lines as followed, and the figures ``view_followed_d``
+        and ``bed_followed_d`` record the largest moves followed. Off by
+        default: each row is counted in the window of experiment.json.
 
     Every map gets a quality record (:mod:`granseg.measure.quality`), stored
     in the file as ``quality``; a failed check raises a
@@ -229,8 +255,9 @@ def analyze(
     spheres becomes a NaN row with a :class:`BadFrameWarning`; bad input
     files or fields raise ValueError / FileNotFoundError naming them.
     """
-    if not isinstance(ends_unmixed, bool | np.bool_):
-        raise ValueError(f"ends_unmixed: expected True or False, got {ends_unmixed!r}")
+    for name, flag in (("ends_unmixed", ends_unmixed), ("follow_walls", follow_walls)):
+        if not isinstance(flag, bool | np.bool_):
+            raise ValueError(f"{name}: expected True or False, got {flag!r}")
     if isinstance(smooth, bool) or not isinstance(smooth, int | np.integer) or smooth < 1 or smooth % 2 == 0:
         raise ValueError(f"smooth: expected an odd number of frames >= 1 (1 = none), got {smooth!r}")
     _check_count("workers", workers, 1, allow_none=True)
@@ -265,14 +292,22 @@ def analyze(
         keep |= set(range(max(0, len(source) - END_FRAMES), len(source)))
     if preview is not None:
         check_previews(Path(preview), [source.names[i] for i in sorted(keep) if i < len(source.names)], force)
-    spheres, crops, bad, names, spots = _detect_all(source, exp, workers, progress, keep, reduce=reduce)
+    spheres, crops, bad, names, spots = _detect_all(source, exp, workers, progress, keep, reduce=reduce,
+                                                    keep_walls=follow_walls)
     # from here on in the reduced frames' pixels (``seen``), until _in_frame_pixels
+    follow = None
+    if follow_walls:  # each frame's spheres told from the walls' hemispheres by its own lines
+        # read from the centres as found: the detections at the walls, told apart here, are yet to
+        # be classed, so the classes' shift (_level_classes, <= 0.4 px) is not yet taken off
+        follow = wall_follow(_walls_by_row(spheres, seen.window))
+        spheres = [_split_at_walls(s, followed_window(seen.window, *f), seen.particle_diameter_px)
+                   for s, f in zip(spheres, follow, strict=True)]
     classes = _classify(spheres, seen, crops, spots, ends_unmixed)
     shift = _level_classes(spheres, seen)
     times = frame_times(source, filmed)
     exp, times = plate_start_by_stamps(exp, given_t0, first, source, times)
     seen = replace(seen, t0=exp.t0)
-    reduced = _assemble(spheres, seen, times.row_seconds(len(spheres), fps), smooth, names, bad)
+    reduced = _assemble(spheres, seen, times.row_seconds(len(spheres), fps), smooth, names, bad, follow)
     reduced.classes, reduced.first, reduced.every = classes, first, int(every)
     reduced.quality = _assess(reduced, shift, reduce, times, source.bits)
     if times.note is not None:
@@ -504,7 +539,7 @@ def _sphere_pixels(s: FrameSpheres | None, k: int) -> FrameSpheres | None:
     shift = 0.5 * (k - 1)
     return replace(s, x=k * s.x + shift, y=k * s.y + shift, r=k * s.r, settle=k * s.settle,
                    beside=k * s.beside + shift, reach=(k * s.reach[0], k * s.reach[1]),
-                   wall_y=k * s.wall_y + shift)
+                   wall_y=k * s.wall_y + shift, at_walls=_sphere_pixels(s.at_walls, k))
 
 
 def _check_count(name: str, value: Any, least: int, allow_none: bool = False, most: int | None = None) -> None:
@@ -629,13 +664,15 @@ class _FrameWorker:
     reduced and everything it returns is in reduced pixels. ``image_size`` is the frames' own.
     """
 
-    def __init__(self, exp: Experiment, image_size: tuple[int, int], describe: bool = True, reduce: int = 1):
+    def __init__(self, exp: Experiment, image_size: tuple[int, int], describe: bool = True, reduce: int = 1,
+                 keep_walls: bool = False):
         full, exp = exp, exp.reduced(reduce)
         x0, y0, x1, y1 = exp.window
         m = int(np.ceil(exp.particle_diameter_px))
         self.crop = (*exp.crop_origin(), int(np.ceil(x1)) + m, int(np.ceil(y1)) + m)
         self.bed_rows = (int(np.ceil(y0)) - self.crop[1], int(np.floor(y1)) - self.crop[1])  # in the crop
         self.exp, self.size, self.describe, self.reduce = exp, image_size, describe, reduce
+        self.keep_walls = keep_walls  # FrameSpheres.at_walls
         reduced_size = (image_size[0] // reduce, image_size[1] // reduce)
         outside = ValueError(f"{exp.path}: field 'window': {list(full.window)} is outside the image "
                              f"({image_size[0]} x {image_size[1]} px) once undistorted with its "
@@ -708,6 +745,10 @@ class _FrameWorker:
             centres = np.column_stack([first.x - self.crop[0], first.y - self.crop[1]])
             self.spots = learn_spots(crop, centres, d, height(first.y, self.exp.window), self.exp.c0, N_LAYERS)
             first.features = sphere_features(crop, centres, d, self.spots)
+            if first.at_walls is not None:
+                at = first.at_walls
+                at.features = sphere_features(crop, np.column_stack([at.x - self.crop[0], at.y - self.crop[1]]), d,
+                                              self.spots)
         self.first = (first, crop)
 
     def _material_bands(self) -> tuple[tuple[float, float], tuple[float, float]]:
@@ -752,12 +793,19 @@ class _FrameWorker:
         feats = sphere_features(crop, found[keep, :2], d, self.spots) if describe else np.zeros((keep.sum(), 0))
         x0, y0, x1, y1 = self.exp.window
         beside = ~inside & clear & (y >= y0) & (y < y1)
+        walls = inside & ~clear
+        at_walls = None
+        if self.keep_walls:
+            feats_at = (sphere_features(crop, found[walls, :2], d, self.spots) if describe
+                        else np.zeros((walls.sum(), feats.shape[1])))
+            at_walls = FrameSpheres(x[walls], y[walls], found[walls, 2], found[walls, 3], feats_at, found[walls, 5],
+                                    placed=self.templates.placed(found[walls, 4].astype(int)))
         return FrameSpheres(x[keep], y[keep], found[keep, 2], found[keep, 3], feats, found[keep, 5],
-                            wall=int((inside & ~clear).sum()), glare=glare, gain=gain,
+                            wall=int(walls.sum()), glare=glare, gain=gain,
                             gain_taken_off=self.exposure.drifting,
                             placed=self.templates.placed(found[keep, 4].astype(int)),
                             beside=np.column_stack([x[beside], y[beside]]), reach=self.reach,
-                            wall_y=y[inside & ~clear])
+                            wall_y=y[walls], at_walls=at_walls)
 
 
 def _seen(source, worker: _FrameWorker, i: int, image: np.ndarray | None) -> np.ndarray:
@@ -777,14 +825,14 @@ def _in_thread(source, worker, i: int, image: np.ndarray | None, keep_crop: bool
     return got[0], (got[1] if keep_crop else None)
 
 
-def _detect_all(source, exp, workers, progress, keep, describe=True, reduce=1):
+def _detect_all(source, exp, workers, progress, keep, describe=True, reduce=1, keep_walls=False):
     """Every frame's spheres (in the frames reduced ``reduce`` times), the kept frames' crops, the
-    bad frames, the names and the learned spots."""
+    bad frames, the names and the learned spots; ``keep_walls``: with FrameSpheres.at_walls."""
     n_workers = max(1, workers or os.cpu_count() or 1)
     first_index, first = _first_image(source)
     _warn_if_grey(first, source, first_index)
     try:
-        worker = _FrameWorker(exp, (first.shape[1], first.shape[0]), describe, reduce)
+        worker = _FrameWorker(exp, (first.shape[1], first.shape[0]), describe, reduce, keep_walls)
     except ValueError:
         _check_same_size(source, first_index, first)  # a stray first frame, not the window, is to blame
         raise
@@ -1064,7 +1112,8 @@ def _assess(result: Analysis, shift: tuple[float, int] = (0.0, 0), reduce: int =
         gloss_at_spots=result.classes.gloss_at_spots if learned else None,
         vacant=_vacant(sample, result.experiment),
         walls=wall_lines(np.r_[first.y, first.wall_y], result.experiment.window),
-        view_lines=_walls_by_row(result.spheres, result.experiment.window),
+        view_lines=_walls_by_row(result.spheres, result.experiment.window, result.follow),
+        followed=None if result.follow is None else (_largest(result.follow[:, 0]), _largest(result.follow[:, 1])),
         level=_level(sample, result.experiment.window),
         learned_from_end=learned and result.classes.both_ends,
         light_contrast=result.classes.field.contrast() if learned and result.classes.field is not None else None,
@@ -1080,14 +1129,44 @@ def _assess(result: Analysis, shift: tuple[float, int] = (0.0, 0), reduce: int =
     )
 
 
-def _walls_by_row(spheres: list, window: tuple[float, float, float, float]) -> np.ndarray:
-    """(n_t, 2) each map row's walls (plate, lid offsets [d], :func:`wall_lines`); NaN for a bad frame."""
+def _split_at_walls(s: FrameSpheres | None, window: tuple[float, float, float, float],
+                    d: float) -> FrameSpheres | None:
+    """``s`` with its spheres and the detections left out at the walls (``s.at_walls``) told apart
+    again by ``window``'s lines, as the frame's own were (layers.clear_of_walls): a lid that rose
+    leaves the layer under it 0.3 d from the window's own line, where it was taken for the lid's
+    hemispheres. The counted spheres come first, in their order; ``s`` as it is without at_walls."""
+    if s is None or s.at_walls is None:
+        return s
+    a = s.at_walls
+    y = np.r_[s.y, a.y]
+    inside = in_window(np.r_[s.x, a.x], y, window)
+    clear = clear_of_walls(y, window, d)
+    keep, walls = inside & clear, inside & ~clear
+
+    def pick(which: np.ndarray) -> dict[str, Any]:
+        return dict(x=np.r_[s.x, a.x][which], y=y[which], r=np.r_[s.r, a.r][which],
+                    score=np.r_[s.score, a.score][which], features=np.concatenate([s.features, a.features])[which],
+                    settle=np.r_[s.settle, a.settle][which],
+                    placed={k: np.r_[v, a.placed[k]][which] for k, v in s.placed.items()})
+
+    return replace(s, **pick(keep), wall=int(walls.sum()), wall_y=y[walls], at_walls=FrameSpheres(**pick(walls)))
+
+
+def _walls_by_row(spheres: list, window: tuple[float, float, float, float],
+                  follow: np.ndarray | None = None) -> np.ndarray:
+    """(n_t, 2) each map row's walls (plate, lid offsets [d], :func:`wall_lines`) against ``window``,
+    or against it as each row followed the walls (``follow``, Analysis.follow); NaN for a bad frame."""
     lines = np.full((len(spheres), 2), np.nan)
     for i, s in enumerate(spheres):
         if s is not None:
-            w = wall_lines(np.r_[s.y, s.wall_y], window)
+            w = wall_lines(np.r_[s.y, s.wall_y], window if follow is None else followed_window(window, *follow[i]))
             lines[i] = w.plate, w.lid
     return lines
+
+
+def _largest(moves: np.ndarray) -> float:
+    """The move of ``moves`` farthest from 0, with its sign."""
+    return float(moves[np.argmax(np.abs(moves))]) if len(moves) else 0.0
 
 
 def _level(sample: list[FrameSpheres], window: tuple[float, float, float, float]) -> tuple[float, float, float]:
@@ -1145,7 +1224,7 @@ def write_detections(path: str | os.PathLike, result: Analysis, force: bool = Fa
         for i, s in enumerate(result.spheres):
             if s is None:
                 continue
-            layer = layer_index(s.y, result.experiment.window)
+            layer = layer_index(s.y, result.window_of(i))
             p = s.p_heavy if s.p_heavy is not None else [None] * len(s.x)
             for x, y, r, h, ph, j in zip(s.x, s.y, s.r, s.heavy, p, layer, strict=True):
                 w.writerow([result.first + i * result.every, f"{x:.2f}", f"{y:.2f}", f"{r:.2f}", "heavy" if h else "light",
@@ -1156,14 +1235,16 @@ def write_detections(path: str | os.PathLike, result: Analysis, force: bool = Fa
 # --------------------------------------------------------------------------- the map
 
 
-def _assemble(spheres, exp, seconds, smooth, names, bad) -> Analysis:
-    """The map of ``spheres`` (per frame, or None), its rows ``seconds`` after the first."""
+def _assemble(spheres, exp, seconds, smooth, names, bad, follow=None) -> Analysis:
+    """The map of ``spheres`` (per frame, or None), its rows ``seconds`` after the first, each counted
+    in the window of ``exp`` or as it followed the walls (``follow``, Analysis.follow)."""
     n_t = len(spheres)
     n = np.zeros((n_t, N_LAYERS), dtype=np.int64)
     nh = np.zeros((n_t, N_LAYERS), dtype=np.int64)
     for i, s in enumerate(spheres):
         if s is not None:
-            n[i], nh[i] = layer_counts(s.x, s.y, s.heavy, exp.window)
+            window = exp.window if follow is None else followed_window(exp.window, *follow[i])
+            n[i], nh[i] = layer_counts(s.x, s.y, s.heavy, window)
     missing = np.array([s is None for s in spheres])
     with np.errstate(invalid="ignore", divide="ignore"):
         c_raw = np.where(n > 0, nh / np.maximum(n, 1), np.nan)
@@ -1172,7 +1253,7 @@ def _assemble(spheres, exp, seconds, smooth, names, bad) -> Analysis:
     c[~np.isfinite(c_raw)] = np.nan
     t = exp.t0 + seconds
     z = (np.arange(N_LAYERS) + 0.5) * D_P
-    return Analysis(c, c_raw, n, nh, t, z, smooth, exp, names, spheres, bad)
+    return Analysis(c, c_raw, n, nh, t, z, smooth, exp, names, spheres, bad, follow=follow)
 
 
 def _save(result: Analysis, out: Path, force: bool, fps: float) -> Path:

@@ -71,7 +71,7 @@ def draw_preview(crop: np.ndarray, result: Any, i: int) -> np.ndarray:
     img = (img * 0.85).astype(np.uint8)
     s = result.spheres[i]
     to_px = lambda x, y: (int(round((x - ox + 0.5) * scale - 0.5)), int(round((y - oy + 0.5) * scale - 0.5)))  # noqa: E731
-    x0, y0, x1, y1 = exp.window
+    x0, y0, x1, y1 = result.window_of(i)  # the lines this row was counted in
     for j in range(N_LAYERS + 1):
         yy = y1 - j * (y1 - y0) / N_LAYERS
         cv2.line(img, to_px(x0, yy), to_px(x1, yy), (230, 230, 230), 1, cv2.LINE_AA)

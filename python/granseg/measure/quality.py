@@ -59,8 +59,7 @@ from granseg.measure.layers import N_LAYERS, height, nearest_distances, nearest_
 
 __all__ = ["Check", "Quality", "QualityWarning", "WallLines", "assess", "depth_mean_check", "spacing_across_view",
            "level_reading", "plate_tilt", "sphere_spacing", "vacancies", "view_move", "views_table",
-           "wall_lines",
-           "window_check_of"]
+           "wall_follow", "wall_lines", "window_check_of"]
 
 VERSION = 1
 # Spheres whose p_heavy is ambiguous, as a share of all counted. Distinct
@@ -311,15 +310,18 @@ ADVICE = {
     "view_steady": "the view moved during the run: both walls moved in the image by the figure given "
                    "(diameters) from the first frames, so the frames after the map row named are binned by "
                    "lines that are off the walls. Fix the camera (and check that the cell does not shift); to "
-                   "keep this run, analyse the frames before and after the move as two recordings, each with "
-                   "its window drawn on its own frames (granseg init-experiment)",
+                   "keep this run, analyse it again with --follow-walls (each frame counted in lines moved "
+                   "with the walls; the check then judges those), or analyse the frames before and after the "
+                   "move as two recordings, each with its window drawn on its own frames (granseg "
+                   "init-experiment)",
     "bed_steady": "the bed's height changed during the run: the lid rose (the bed dilated under shear) or "
                   "fell (it settled) against the plate by the figure given (diameters) from the first frames, "
                   "so from the map row named the upper layers are binned by lines they have left. Where the "
                   "lid moves once, as the shear starts, leave out the frames before it has settled and draw "
                   "the window's lid line on a frame after (granseg init-experiment); where it keeps moving, "
-                  "the window's fixed layers cannot follow the bed: analyse the stretches between the moves as "
-                  "separate recordings. If view_steady fails too, mend that first: the lid is read against the "
+                  "analyse the run again with --follow-walls: each frame's lid line then moves with the lid, "
+                  "the bed taken to dilate evenly over its height (the check then judges those lines). If "
+                  "view_steady fails too, mend that first: the lid is read against the "
                   "view's move",
     "window_level": "the camera is not level: the spheres resting on the plate climb across the window by the "
                     "figure given (diameters), so the window's lines meet the walls at one end and miss them at "
@@ -378,7 +380,8 @@ def assess(*, n: np.ndarray, n_heavy: np.ndarray, c0: float, first_heights: np.n
            frames_reduced: int = 1, frames_every: int = 1, frames_first: int = 0,
            frame_times: tuple[float, bool] | None = None, spacing: tuple[float, float] | None = None,
            across_view: tuple[float, bool] | None = None, sample_bits: int | None = None,
-           view_lines: np.ndarray | None = None, level: tuple[float, float, float] | None = None) -> Quality:
+           view_lines: np.ndarray | None = None, level: tuple[float, float, float] | None = None,
+           followed: tuple[float, float] | None = None) -> Quality:
     """Run every check on one analysed run.
 
     n, n_heavy: (n_t, n_layers) counts (rows of bad frames all zero);
@@ -447,6 +450,12 @@ def assess(*, n: np.ndarray, n_heavy: np.ndarray, c0: float, first_heights: np.n
     bed_steady checks (:func:`view_move`, :func:`bed_rise`; the figure
     ``bed_rise_d`` keeps the signed change, positive where the lid rose;
     None: not checked);
+    followed: the largest move [d] each row's window followed, of the view
+    (down) and of the lid against the plate (up), where the rows were
+    counted in windows that followed the walls (pipeline.analyze's
+    ``follow_walls``; view_lines are then read against those windows, so
+    the two checks judge what is left); the figures ``view_followed_d``
+    and ``bed_followed_d``; None: the rows were counted in one window;
     level: how much higher [d] the layer resting on the plate lies at the
     window's right end than at its left, the reading's error
     (:func:`level_reading`), and the angle [deg] by which that turns the
@@ -507,6 +516,8 @@ def assess(*, n: np.ndarray, n_heavy: np.ndarray, c0: float, first_heights: np.n
     if view_lines is not None:
         rise = bed_rise(view_lines)[0]
         figures["bed_rise_d"] = float(rise) if np.isfinite(rise) else None
+    if followed is not None:
+        figures.update(view_followed_d=float(followed[0]), bed_followed_d=float(followed[1]))
     if walls is not None:
         figures["window_lines_d"] = {k: float(v) if np.isfinite(v) else None  # None: too few spheres there
                                      for k, v in (("plate", walls.plate), ("lid", walls.lid))}
@@ -654,6 +665,46 @@ def bed_rise(lines: np.ndarray) -> tuple[float, int]:
     held = _held(np.abs(change), VIEW_MOVE_REACH)  # a bed that dilated stays so, as a knocked camera stays moved
     most = int(np.argmax(held))
     return float(np.sign(change[most]) * held[most]), int(rows[most])
+
+
+def wall_follow(lines: np.ndarray) -> np.ndarray:
+    """(n_t, 2) how far [d] each map row's window follows the walls: how far the view had moved down
+    since the first rows (negative: up; :func:`view_move`'s move, signed) and how far the lid had
+    risen against the plate (negative: fallen; :func:`bed_rise`'s change), from each row's walls
+    ``lines`` as those read them, each held as they hold it and then spread back over the rows it was
+    held from (:func:`_opened`: a few rows' excursion is not followed, and a step is followed from its
+    first row, where the hold alone lags it by VIEW_MOVE_REACH rows), and carried between the rows
+    that read both walls to those that do not. A move is followed only where its check fails (over
+    VIEW_MOVE_SLACK, BED_RISE_SLACK), else 0 throughout: the readings of a run where nothing moved
+    stray by up to 0.05 d (the lid's on the bumpy 2-D scene, whose top layer nests between the
+    lid's bumps, on the boundary of its row), and following them put its counts 0.2 -> 3.9 % off
+    (bumps-S-PP seed 7; BENCHMARKS.md, "Windows that follow the walls"). All 0 with fewer than 3
+    rows reading both walls (as those checks are then not made)."""
+    lines = np.asarray(lines, dtype=float).reshape(-1, 2)
+    follow = np.zeros((len(lines), 2))
+    rows, steady = _steady_walls(lines)
+    if len(rows) < 3:
+        return follow
+    shift = _view_shift(steady)
+    for k, (moved, slack) in enumerate(((shift, VIEW_MOVE_SLACK),
+                                        (shift - (steady[:, 1] - steady[0, 1]), BED_RISE_SLACK))):
+        kept = np.sign(moved) * _opened(np.abs(moved), VIEW_MOVE_REACH)
+        if np.abs(kept).max() > slack:
+            follow[:, k] = np.interp(np.arange(len(lines)), rows, kept)
+    return follow
+
+
+def _opened(values: np.ndarray, k: int) -> np.ndarray:
+    """The greatest, over the runs of 2 k + 1 rows that hold each row (kept whole inside the series,
+    as :func:`_held` keeps them), of the least of ``values`` over the run (a morphological opening):
+    what holds over 2 k + 1 rows or more is kept whole, step edges included, and a shorter excursion
+    is taken off."""
+    n, w = len(values), 2 * k + 1
+    if n <= w:
+        return np.full(n, float(np.min(values)))
+    least = np.lib.stride_tricks.sliding_window_view(values, w).min(axis=1)  # one per run's start
+    padded = np.pad(least, w - 1, constant_values=-np.inf)
+    return np.lib.stride_tricks.sliding_window_view(padded, w).max(axis=1)
 
 
 def _steady_walls(lines: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
