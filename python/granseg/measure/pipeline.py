@@ -295,15 +295,15 @@ def analyze(
     spheres, crops, bad, names, spots = _detect_all(source, exp, workers, progress, keep, reduce=reduce,
                                                     keep_walls=follow_walls)
     # from here on in the reduced frames' pixels (``seen``), until _in_frame_pixels
-    follow = None
     if follow_walls:  # each frame's spheres told from the walls' hemispheres by its own lines
-        # read from the centres as found: the detections at the walls, told apart here, are yet to
-        # be classed, so the classes' shift (_level_classes, <= 0.4 px) is not yet taken off
-        follow = wall_follow(_walls_by_row(spheres, seen.window))
+        apart = wall_follow(_walls_by_row(spheres, seen.window))
         spheres = [_split_at_walls(s, followed_window(seen.window, *f), seen.particle_diameter_px)
-                   for s, f in zip(spheres, follow, strict=True)]
+                   for s, f in zip(spheres, apart, strict=True)]
     classes = _classify(spheres, seen, crops, spots, ends_unmixed)
     shift = _level_classes(spheres, seen)
+    # the rows' lines read again once the classes' shift is off the centres, as the checks read them
+    # without following: read before, a move the check flagged (0.054 d) was not followed (0.050)
+    follow = wall_follow(_walls_by_row(spheres, seen.window)) if follow_walls else None
     times = frame_times(source, filmed)
     exp, times = plate_start_by_stamps(exp, given_t0, first, source, times)
     seen = replace(seen, t0=exp.t0)
