@@ -504,6 +504,14 @@ def test_a_camera_moved_during_the_run_is_flagged(tmp_path):
     assert followed.window_of(0) == tuple(followed.experiment.window) and followed.window_of(11)[1] > followed.window_of(0)[1]
     off, left = _counts_off(moved.n[6:], r.n[6:]), _counts_off(followed.n[6:], r.n[6:])
     assert left < 0.5 * off, (off, left)
+    # the command line's flag, and the moves followed kept in the map's quality record
+    out = tmp_path / "followed.npz"
+    assert main(["analyze", str(r.source), "--follow-walls", "--strict", "--no-progress", "--out", str(out)]) == 0
+    figures = json.loads(load_map(out).quality)["figures"]
+    assert figures["view_followed_d"] == pytest.approx(followed.quality.figures["view_followed_d"])
+    np.testing.assert_array_equal(load_map(out).n, followed.n)
+    with pytest.raises(ValueError, match="follow_walls"):
+        analyze(r.source, save=False, progress=False, follow_walls="yes")
 
 
 def test_bed_rise_is_the_lid_moving_against_the_plate():
