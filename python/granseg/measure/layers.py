@@ -8,7 +8,7 @@ from scipy.spatial import cKDTree
 from granseg.constants import N_LAYERS
 
 __all__ = ["N_LAYERS", "WALL_CLEARANCE", "across", "clear_of_walls", "followed_window", "height", "in_window", "layer_index", "layer_counts",
-           "nearest_distances", "nearest_spacing"]
+           "nearest_distances", "nearest_spacing", "row_window"]
 
 # A free sphere's centre lies at least half a diameter from the lid and the
 # plate (more between the bumps). The hemispheres fixed to both walls, one
@@ -52,6 +52,13 @@ def followed_window(window: tuple[float, float, float, float], down: float, rise
     x0, y0, x1, y1 = window
     layer = (y1 - y0) / n_layers
     return x0, y0 + (down - rise) * layer, x1, y1 + down * layer
+
+
+def row_window(window: tuple[float, float, float, float], follow: np.ndarray | None,
+               i: int) -> tuple[float, float, float, float]:
+    """The window map row ``i`` is counted in: ``window``, or with ``follow`` ((n_t, 2) moves [d],
+    quality.wall_follow) its lines moved as that row followed the walls (:func:`followed_window`)."""
+    return window if follow is None else followed_window(window, *follow[i])
 
 
 def across(x: np.ndarray, window: tuple[float, float, float, float]) -> np.ndarray:

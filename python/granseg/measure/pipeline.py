@@ -43,6 +43,7 @@ from granseg.measure.layers import (
     in_window,
     layer_counts,
     layer_index,
+    row_window,
 )
 from granseg.measure.outline import class_shift
 from granseg.measure.preview import check_previews, write_previews
@@ -168,9 +169,7 @@ class Analysis:
     def window_of(self, i: int) -> tuple[float, float, float, float]:
         """The window map row ``i`` was counted in: the experiment's, or with ``follow`` (analyze's
         ``follow_walls``) its lines moved with the walls (layers.followed_window)."""
-        if self.follow is None:
-            return self.experiment.window
-        return followed_window(self.experiment.window, *self.follow[i])
+        return row_window(self.experiment.window, self.follow, i)
 
 
 def analyze(
@@ -1159,7 +1158,7 @@ def _walls_by_row(spheres: list, window: tuple[float, float, float, float],
     lines = np.full((len(spheres), 2), np.nan)
     for i, s in enumerate(spheres):
         if s is not None:
-            w = wall_lines(np.r_[s.y, s.wall_y], window if follow is None else followed_window(window, *follow[i]))
+            w = wall_lines(np.r_[s.y, s.wall_y], row_window(window, follow, i))
             lines[i] = w.plate, w.lid
     return lines
 
@@ -1243,8 +1242,7 @@ def _assemble(spheres, exp, seconds, smooth, names, bad, follow=None) -> Analysi
     nh = np.zeros((n_t, N_LAYERS), dtype=np.int64)
     for i, s in enumerate(spheres):
         if s is not None:
-            window = exp.window if follow is None else followed_window(exp.window, *follow[i])
-            n[i], nh[i] = layer_counts(s.x, s.y, s.heavy, window)
+            n[i], nh[i] = layer_counts(s.x, s.y, s.heavy, row_window(exp.window, follow, i))
     missing = np.array([s is None for s in spheres])
     with np.errstate(invalid="ignore", divide="ignore"):
         c_raw = np.where(n > 0, nh / np.maximum(n, 1), np.nan)

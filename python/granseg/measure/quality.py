@@ -614,10 +614,10 @@ def view_move(lines: np.ndarray) -> tuple[float, int]:
     2 VIEW_MOVE_REACH + 1 rows around it (:func:`_held`). (NaN, 0) with fewer
     than 3 such rows.
     """
-    rows, steady = _steady_walls(lines)
+    rows, shift, _ = _wall_moves(lines)
     if len(rows) < 3:
         return float("nan"), 0
-    both = _held(np.abs(_view_shift(steady)), VIEW_MOVE_REACH)
+    both = _held(np.abs(shift), VIEW_MOVE_REACH)
     most = int(np.argmax(both))
     return float(both[most]), int(rows[most])
 
@@ -636,14 +636,20 @@ def _held(values: np.ndarray, k: int) -> np.ndarray:
     return np.lib.stride_tricks.sliding_window_view(values, w).min(axis=1)[starts]
 
 
-def _view_shift(steady: np.ndarray) -> np.ndarray:
-    """How far [d] the view had moved down in the image at each row (negative: up), from the walls'
-    smoothed readings ``steady`` (:func:`_steady_walls`): the smaller of the two walls' moves from
-    the first row where both go the same way (down: the lid's offset grows, the plate's shrinks),
-    else 0."""
+def _wall_moves(lines: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The map rows that read both walls (:func:`_steady_walls`) and, at each, how far [d] the view
+    had moved down in the image since the first (negative: up) and how far the lid had risen
+    against the plate (negative: fallen). The view's move is the smaller of the two walls' moves
+    from the first row where both go the same way (down: the lid's offset grows, the plate's
+    shrinks), else 0; the lid's rise is how far the layer under it moved up in the image, less the
+    view's move."""
+    rows, steady = _steady_walls(lines)
+    if len(rows) == 0:
+        return rows, np.empty(0), np.empty(0)
     down_lid, down_plate = steady[:, 1] - steady[0, 1], steady[0, 0] - steady[:, 0]
-    return np.where(down_lid * down_plate > 0,
-                    np.sign(down_lid) * np.minimum(np.abs(down_lid), np.abs(down_plate)), 0.0)
+    shift = np.where(down_lid * down_plate > 0,
+                     np.sign(down_lid) * np.minimum(np.abs(down_lid), np.abs(down_plate)), 0.0)
+    return rows, shift, shift - down_lid
 
 
 def bed_rise(lines: np.ndarray) -> tuple[float, int]:
@@ -658,10 +664,9 @@ def bed_rise(lines: np.ndarray) -> tuple[float, int]:
     and smears with its blur, and a difference of the two walls' readings took that for the bed
     (BENCHMARKS.md, "A lid that rises during the run"). (NaN, 0) with fewer than 3 rows reading
     both walls."""
-    rows, steady = _steady_walls(lines)
+    rows, _, change = _wall_moves(lines)
     if len(rows) < 3:
         return float("nan"), 0
-    change = _view_shift(steady) - (steady[:, 1] - steady[0, 1])
     held = _held(np.abs(change), VIEW_MOVE_REACH)  # a bed that dilated stays so, as a knocked camera stays moved
     most = int(np.argmax(held))
     return float(np.sign(change[most]) * held[most]), int(rows[most])
@@ -682,12 +687,10 @@ def wall_follow(lines: np.ndarray) -> np.ndarray:
     rows reading both walls (as those checks are then not made)."""
     lines = np.asarray(lines, dtype=float).reshape(-1, 2)
     follow = np.zeros((len(lines), 2))
-    rows, steady = _steady_walls(lines)
+    rows, shift, change = _wall_moves(lines)
     if len(rows) < 3:
         return follow
-    shift = _view_shift(steady)
-    for k, (moved, slack) in enumerate(((shift, VIEW_MOVE_SLACK),
-                                        (shift - (steady[:, 1] - steady[0, 1]), BED_RISE_SLACK))):
+    for k, (moved, slack) in enumerate(((shift, VIEW_MOVE_SLACK), (change, BED_RISE_SLACK))):
         kept = np.sign(moved) * _opened(np.abs(moved), VIEW_MOVE_REACH)
         if np.abs(kept).max() > slack:
             follow[:, k] = np.interp(np.arange(len(lines)), rows, kept)
