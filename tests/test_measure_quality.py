@@ -7,6 +7,7 @@ import json
 import re
 import warnings
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -35,7 +36,7 @@ from granseg.measure.classify import (
 from granseg.measure.experiment import load_experiment
 from granseg.measure.exposure import DRIFT_LIMIT
 from granseg.measure.init import _camera as init_camera
-from granseg.measure.layers import followed_window
+from granseg.measure.layers import N_LAYERS, followed_window
 from granseg.measure.quality import (
     BED_RISE_SLACK,
     LENS_HINT,
@@ -443,6 +444,44 @@ def test_view_move_is_what_both_walls_do_together():
     move, row = view_move(gaps)
     assert move == pytest.approx(0.08, abs=0.012) and 24 <= row < 40 and np.isfinite(gaps[row]).all()
     assert np.isnan(view_move(still[:2])[0]) and np.isnan(view_move(np.full((9, 2), np.nan))[0])
+
+
+def _bed_rows(n_t: int, rng, heavy_low: float, light_high: float, moved_from: int, move: float) -> list:
+    """Rows of a 15-layer bed, 20 px a layer, whose plate layer turns from light to heavy over the
+    run: the heavy class found ``heavy_low`` d lower there and the light ``light_high`` d higher
+    (the smear of the moving plate), the view moved ``move`` d down from row ``moved_from``."""
+    rows = []
+    for i in range(n_t):
+        h = np.repeat(np.arange(N_LAYERS) + 0.5, 9) + 0.01 * rng.standard_normal(9 * N_LAYERS)
+        heavy = np.repeat(np.arange(N_LAYERS) >= 8, 9)
+        heavy[:9] = np.arange(9) < round(9 * i / (n_t - 1))  # the plate layer's heavy share 0 -> 1
+        h[:9] += np.where(heavy[:9], -heavy_low, light_high)
+        h -= move if i >= moved_from else 0.0
+        rows.append(SimpleNamespace(y=400.0 - 20.0 * h, heavy=heavy, wall_y=np.empty(0)))
+    return rows
+
+
+def test_the_walls_are_read_with_the_classes_gap_on_the_plate_taken_off():
+    """In the layer smeared by the moving plate the classes keep a gap of their own (the heavy read
+    low, the light high). The plate's reading must not sink as the heavy class comes down into that
+    layer, or a view moved 0.1 d reads half of it (motion-blur-S-PP seed 7: 0.047)."""
+    window = (0.0, 100.0, 180.0, 400.0)
+    rng = np.random.default_rng(4)
+    still = pipeline._walls_by_row(_bed_rows(24, rng, 0.045, 0.02, 24, 0.0), window)
+    assert np.ptp(still[:, 0]) < 0.03 and np.ptp(still[:, 1]) < 0.03 and view_move(still)[0] < 0.01
+    moved = pipeline._walls_by_row(_bed_rows(24, rng, 0.045, 0.02, 12, -0.1), window)
+    assert view_move(moved)[0] == pytest.approx(0.1, abs=0.01)
+    assert abs(bed_rise(moved)[0]) < 0.01
+    unclassed = _bed_rows(24, rng, 0.045, 0.02, 24, 0.0)
+    for s in unclassed:
+        s.heavy = None  # before the classes are learned, read as found
+    assert np.ptp(pipeline._walls_by_row(unclassed, window)[:, 0]) > 0.05
+    # on a bumpy plate each sphere nests at its own height, and the frames' gaps are noise
+    bumpy = _bed_rows(24, rng, 0.0, 0.0, 24, 0.0)
+    for s in bumpy:
+        s.y[:9] -= 20.0 * rng.uniform(0.0, 0.4, 9)
+    assert pipeline._plate_class_gap(bumpy, window) == 0.0
+    assert pipeline._plate_class_gap(_bed_rows(24, rng, 0.045, 0.02, 24, 0.0), window) == pytest.approx(0.065, abs=0.01)
 
 
 def test_the_window_follows_what_the_checks_read():
