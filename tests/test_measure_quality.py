@@ -446,6 +446,25 @@ def test_view_move_is_what_both_walls_do_together():
     assert np.isnan(view_move(still[:2])[0]) and np.isnan(view_move(np.full((9, 2), np.nan))[0])
 
 
+def test_the_plates_ride_on_its_bumps_does_not_hide_a_move():
+    """The layer on the plate rides its bumps up for a few frames, never below where it nests. A ride
+    of four frames in the middle of a move must not break the move into runs too short to hold, as
+    it did on bumps-S-PP seed 8 (a view moved 0.1 d down read 0.000, a lid risen 0.1 d 0.003)."""
+    rng = np.random.default_rng(1)
+    still = np.column_stack([0.015 + 0.003 * rng.standard_normal(24), 0.008 + 0.003 * rng.standard_normal(24)])
+    ride = np.zeros((24, 2))
+    ride[16:20, 0] = [0.16, 0.22, 0.23, 0.11]  # rows 16-19, as read on that run
+    moved = still + ride
+    moved[12:] += [-0.1, 0.1]  # the image moved down 0.1 d from row 12 on
+    assert view_move(moved)[0] == pytest.approx(0.1, abs=0.015)
+    assert abs(bed_rise(moved)[0]) < 0.02
+    risen = still + ride
+    risen[12:, 1] -= 0.1  # the lid rose 0.1 d from row 12 on
+    assert bed_rise(risen)[0] == pytest.approx(0.1, abs=0.015)
+    assert view_move(risen)[0] < 0.02
+    assert view_move(still + ride)[0] < 0.01 and abs(bed_rise(still + ride)[0]) < 0.01
+
+
 def _bed_rows(n_t: int, rng, heavy_low: float, light_high: float, moved_from: int, move: float) -> list:
     """Rows of a 15-layer bed, 20 px a layer, whose plate layer turns from light to heavy over the
     run: the heavy class found ``heavy_low`` d lower there and the light ``light_high`` d higher
