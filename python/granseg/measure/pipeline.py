@@ -1084,8 +1084,15 @@ def _level_classes(spheres: list[FrameSpheres | None], exp: Experiment) -> tuple
     good = [s for s in spheres if s is not None]
     shift, pairs = class_shift([(s.x, s.y, s.heavy) for s in good], exp.particle_diameter_px)
     for s in good:
-        s.y = s.y + np.where(s.heavy, -0.5, 0.5) * shift
+        s.y = s.y + _half_each(s.heavy, shift)
     return shift, pairs
+
+
+def _half_each(heavy: np.ndarray, gap_px: float) -> np.ndarray:
+    """The move [px, y down] of each sphere that takes a gap of ``gap_px`` between the classes off
+    (the light class found that much higher than the heavy), half from each: the light down, the
+    heavy up."""
+    return np.where(heavy, -0.5, 0.5) * gap_px
 
 
 def _assess(result: Analysis, shift: tuple[float, int] = (0.0, 0), reduce: int = 1,
@@ -1169,9 +1176,9 @@ def _walls_by_row(spheres: list, window: tuple[float, float, float, float],
         if s is not None:
             w = row_window(window, follow, i)
             y = s.y
-            if s.heavy is not None:  # each class moved half the gap, in the plate's half of the bed only
+            if s.heavy is not None:  # in the plate's half of the bed only
                 low = height(y, w) < N_LAYERS / 2
-                y = y + np.where(low, np.where(s.heavy, -0.5, 0.5) * gap * (w[3] - w[1]) / N_LAYERS, 0.0)
+                y = y + np.where(low, _half_each(s.heavy, gap * (w[3] - w[1]) / N_LAYERS), 0.0)
             read = wall_lines(np.r_[y, s.wall_y], w)
             lines[i] = read.plate, read.lid
     return lines
