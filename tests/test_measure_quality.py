@@ -503,6 +503,39 @@ def test_the_walls_are_read_with_the_classes_gap_on_the_plate_taken_off():
     assert pipeline._plate_class_gap(_bed_rows(24, rng, 0.045, 0.02, 24, 0.0), window) == pytest.approx(0.065, abs=0.01)
 
 
+def _lid_rows(n_t: int, rng, lowered_from: int, lowered: float, moved_from: int, moved: float) -> list:
+    """Rows of a 15-layer bed, 20 px a layer, under a bumpy lid that holds most of the layer under it
+    off: two spheres touch it, the rest nest between its bumps, and one of those rises 0.09 d into
+    contact over the run (as on bumps-S-PP seed 16). The lid lowered ``lowered`` d from row
+    ``lowered_from`` on, the view moved ``moved`` d down from row ``moved_from`` on."""
+    rows = []
+    for i in range(n_t):
+        h = np.repeat(np.arange(N_LAYERS) + 0.5, 10) + 0.003 * rng.standard_normal(10 * N_LAYERS)
+        depth = np.array([0.50, 0.505, 0.60 - 0.09 * i / (n_t - 1), 0.62, 0.65, 0.68, 0.80, 0.92, 0.98, 1.05])
+        h[-10:] = N_LAYERS - depth - (lowered if i >= lowered_from else 0.0) + 0.003 * rng.standard_normal(10)
+        h -= moved if i >= moved_from else 0.0
+        rows.append(SimpleNamespace(y=400.0 - 20.0 * h, heavy=None, wall_y=np.empty(0)))
+    return rows
+
+
+def test_the_lid_is_read_from_the_spheres_that_touch_it():
+    """Under a bumpy lid only a few spheres touch it. The lid's reading from frame to frame must
+    follow those, not the next one as it settles into contact: read at the 20th percentile, the
+    lid's reading drifted 0.075 d on bumps-S-PP seed 16, where a view moved 0.1 d read 0.044 and a
+    lid lowered 0.1 d read 0.028."""
+    window = (0.0, 100.0, 180.0, 400.0)
+    rng = np.random.default_rng(5)
+    still = pipeline._walls_by_row(_lid_rows(24, rng, 24, 0.0, 24, 0.0), window)
+    assert np.ptp(still[:, 1]) < 0.03 and abs(bed_rise(still)[0]) < 0.02 and view_move(still)[0] < 0.01
+    lowered = pipeline._walls_by_row(_lid_rows(24, rng, 12, 0.1, 24, 0.0), window)
+    assert bed_rise(lowered)[0] == pytest.approx(-0.1, abs=0.015) and view_move(lowered)[0] < 0.01
+    moved = pipeline._walls_by_row(_lid_rows(24, rng, 24, 0.0, 12, 0.1), window)
+    assert view_move(moved)[0] == pytest.approx(0.1, abs=0.015) and abs(bed_rise(moved)[0]) < 0.02
+    # the first frame's window_lines keeps the 20th percentile, for which its limit was set
+    first = _lid_rows(24, rng, 24, 0.0, 24, 0.0)[0].y
+    assert wall_lines(first, window).lid > wall_lines(first, window, lid_quantile=quality.LID_MOVE_QUANTILE).lid
+
+
 def test_the_window_follows_what_the_checks_read():
     """wall_follow moves each row's window as far as view_move and bed_rise read a move where its
     check fails: from the step's first row on (the hold alone lags it), the view's move where both

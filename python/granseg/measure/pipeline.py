@@ -49,6 +49,7 @@ from granseg.measure.outline import class_shift
 from granseg.measure.preview import check_previews, write_previews
 from granseg.measure.quality import (
     FRAME_TIMES_SHARE,
+    LID_MOVE_QUANTILE,
     WALL_LINE_BAND,
     Quality,
     QualityWarning,
@@ -1169,7 +1170,7 @@ def _walls_by_row(spheres: list, window: tuple[float, float, float, float],
     """(n_t, 2) each map row's walls (plate, lid offsets [d], :func:`wall_lines`) against ``window``,
     or against it as each row followed the walls (``follow``, Analysis.follow); NaN for a bad frame.
     Once the classes are known, the layer on the plate is read with their gap there taken off
-    (:func:`_plate_class_gap`)."""
+    (:func:`_plate_class_gap`). The lid is read at its lower percentile, LID_MOVE_QUANTILE."""
     lines = np.full((len(spheres), 2), np.nan)
     gap = _plate_class_gap(spheres, window)
     for i, s in enumerate(spheres):
@@ -1179,7 +1180,7 @@ def _walls_by_row(spheres: list, window: tuple[float, float, float, float],
             if s.heavy is not None:  # in the plate's half of the bed only
                 low = height(y, w) < N_LAYERS / 2
                 y = y + np.where(low, _half_each(s.heavy, gap * (w[3] - w[1]) / N_LAYERS), 0.0)
-            read = wall_lines(np.r_[y, s.wall_y], w)
+            read = wall_lines(np.r_[y, s.wall_y], w, lid_quantile=LID_MOVE_QUANTILE)
             lines[i] = read.plate, read.lid
     return lines
 
