@@ -36,7 +36,7 @@ from granseg.measure.classify import (
 from granseg.measure.experiment import load_experiment
 from granseg.measure.exposure import DRIFT_LIMIT
 from granseg.measure.init import _camera as init_camera
-from granseg.measure.layers import N_LAYERS, followed_window
+from granseg.measure.layers import N_LAYERS, WALL_CLEARANCE, followed_window
 from granseg.measure.quality import (
     BED_RISE_SLACK,
     LENS_HINT,
@@ -476,7 +476,7 @@ def _bed_rows(n_t: int, rng, heavy_low: float, light_high: float, moved_from: in
         heavy[:9] = np.arange(9) < round(9 * i / (n_t - 1))  # the plate layer's heavy share 0 -> 1
         h[:9] += np.where(heavy[:9], -heavy_low, light_high)
         h -= move if i >= moved_from else 0.0
-        rows.append(SimpleNamespace(y=400.0 - 20.0 * h, heavy=heavy, wall_y=np.empty(0)))
+        rows.append(SimpleNamespace(y=400.0 - 20.0 * h, heavy=heavy, wall_y=np.empty(0), wall_x=np.empty(0)))
     return rows
 
 
@@ -504,17 +504,27 @@ def test_the_walls_are_read_with_the_classes_gap_on_the_plate_taken_off():
 
 
 def _lid_rows(n_t: int, rng, lowered_from: int, lowered: float, moved_from: int, moved: float) -> list:
-    """Rows of a 15-layer bed, 20 px a layer, under a bumpy lid that holds most of the layer under it
-    off: two spheres touch it, the rest nest between its bumps, and one of those rises 0.09 d into
-    contact over the run (as on bumps-S-PP seed 16). The lid lowered ``lowered`` d from row
-    ``lowered_from`` on, the view moved ``moved`` d down from row ``moved_from`` on."""
+    """Rows of a 15-layer bed, 20 px a layer and 9 spheres across, under a bumpy lid that holds most
+    of the layer under it off: two spheres touch it, the rest nest between its bumps, and one of
+    those rises 0.09 d into contact over the run (as on bumps-S-PP seed 16). The lid's three bumps
+    are found 0.26 d below its line, within the wall clearance (0.38 d), as the walls' detections.
+    The lid lowered ``lowered`` d from row ``lowered_from`` on (its bumps with it), the view moved
+    ``moved`` d down from row ``moved_from`` on; what comes within the clearance of the lid's line
+    is found among the walls' detections."""
     rows = []
+    bumps_x = np.array([30.0, 90.0, 150.0])
     for i in range(n_t):
-        h = np.repeat(np.arange(N_LAYERS) + 0.5, 10) + 0.003 * rng.standard_normal(10 * N_LAYERS)
-        depth = np.array([0.50, 0.505, 0.60 - 0.09 * i / (n_t - 1), 0.62, 0.65, 0.68, 0.80, 0.92, 0.98, 1.05])
-        h[-10:] = N_LAYERS - depth - (lowered if i >= lowered_from else 0.0) + 0.003 * rng.standard_normal(10)
-        h -= moved if i >= moved_from else 0.0
-        rows.append(SimpleNamespace(y=400.0 - 20.0 * h, heavy=None, wall_y=np.empty(0)))
+        h = np.repeat(np.arange(N_LAYERS) + 0.5, 9) + 0.003 * rng.standard_normal(9 * N_LAYERS)
+        x = np.tile(10.0 + 20.0 * np.arange(9), N_LAYERS)
+        depth = np.array([0.50, 0.505, 0.60 - 0.09 * i / (n_t - 1), 0.62, 0.65, 0.68, 0.80, 0.92, 0.98])
+        down = (lowered if i >= lowered_from else 0.0)
+        h[-9:] = N_LAYERS - depth - down + 0.003 * rng.standard_normal(9)
+        x[-9:] = [0.0, 60.0, 120.0, 45.0, 75.0, 105.0, 15.0, 165.0, 135.0]  # the touching pair between bumps
+        h = np.r_[h, np.full(3, N_LAYERS - 0.26 - down)] - (moved if i >= moved_from else 0.0)
+        x = np.r_[x, bumps_x]
+        walls = N_LAYERS - h < WALL_CLEARANCE
+        rows.append(SimpleNamespace(y=400.0 - 20.0 * h[~walls], heavy=None, wall_y=400.0 - 20.0 * h[walls],
+                                    wall_x=x[walls]))
     return rows
 
 
@@ -531,8 +541,13 @@ def test_the_lid_is_read_from_the_spheres_that_touch_it():
     assert bed_rise(lowered)[0] == pytest.approx(-0.1, abs=0.015) and view_move(lowered)[0] < 0.01
     moved = pipeline._walls_by_row(_lid_rows(24, rng, 24, 0.0, 12, 0.1), window)
     assert view_move(moved)[0] == pytest.approx(0.1, abs=0.015) and abs(bed_rise(moved)[0]) < 0.02
+    # the bumps, moved down 0.1 d, lie in the reading's band; the spheres that come within the
+    # clearance as the view moves up are still read (they stand between the bumps)
+    up = pipeline._walls_by_row(_lid_rows(24, rng, 24, 0.0, 12, -0.15), window)
+    assert view_move(up)[0] == pytest.approx(0.15, abs=0.015) and abs(bed_rise(up)[0]) < 0.02
     # the first frame's window_lines keeps the 20th percentile, for which its limit was set
-    first = _lid_rows(24, rng, 24, 0.0, 24, 0.0)[0].y
+    first = _lid_rows(24, rng, 24, 0.0, 24, 0.0)[0]
+    first = np.r_[first.y, first.wall_y]
     assert wall_lines(first, window).lid > wall_lines(first, window, lid_quantile=quality.LID_MOVE_QUANTILE).lid
 
 

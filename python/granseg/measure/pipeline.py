@@ -31,7 +31,7 @@ from granseg.measure.classify import (
     smeared_images,
     sphere_features,
 )
-from granseg.measure.detect import INSIDE_RADII, Templates, detect_particles, learn_templates
+from granseg.measure.detect import INSIDE_RADII, Templates, _near, detect_particles, learn_templates
 from granseg.measure.experiment import Experiment, load_experiment
 from granseg.measure.exposure import Exposure, bed_level, survey, survey_indices
 from granseg.measure.layers import (
@@ -109,8 +109,8 @@ class FrameSpheres:
     beside: centres (k, 2) found beyond the window's left and right sides, in
     its rows and clear of lid and plate (not counted; the vacancies check
     looks up to the sides with them), looked for up to reach = (left, right)
-    [px] beyond them (0 where the image does not go on); wall_y: the
-    centres' y [undistorted px] of the detections left out as hemispheres of
+    [px] beyond them (0 where the image does not go on); wall_y, wall_x: the
+    centres [undistorted px] of the detections left out as hemispheres of
     the lid or plate (``wall`` of them), which the window_lines check reads;
     at_walls: those detections whole, described as the counted ones are (kept
     only for analyze's ``follow_walls``, else None), which a window that
@@ -133,6 +133,7 @@ class FrameSpheres:
     beside: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
     reach: tuple[float, float] = (0.0, 0.0)
     wall_y: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    wall_x: np.ndarray = field(default_factory=lambda: np.zeros(0))
     at_walls: FrameSpheres | None = None
 
 
@@ -545,7 +546,7 @@ def _sphere_pixels(s: FrameSpheres | None, k: int) -> FrameSpheres | None:
     shift = 0.5 * (k - 1)
     return replace(s, x=k * s.x + shift, y=k * s.y + shift, r=k * s.r, settle=k * s.settle,
                    beside=k * s.beside + shift, reach=(k * s.reach[0], k * s.reach[1]),
-                   wall_y=k * s.wall_y + shift, at_walls=_sphere_pixels(s.at_walls, k))
+                   wall_y=k * s.wall_y + shift, wall_x=k * s.wall_x + shift, at_walls=_sphere_pixels(s.at_walls, k))
 
 
 def _check_count(name: str, value: Any, least: int, allow_none: bool = False, most: int | None = None) -> None:
@@ -811,7 +812,7 @@ class _FrameWorker:
                             gain_taken_off=self.exposure.drifting,
                             placed=self.templates.placed(found[keep, 4].astype(int)),
                             beside=np.column_stack([x[beside], y[beside]]), reach=self.reach,
-                            wall_y=y[walls], at_walls=at_walls)
+                            wall_y=y[walls], wall_x=x[walls], at_walls=at_walls)
 
 
 def _seen(source, worker: _FrameWorker, i: int, image: np.ndarray | None) -> np.ndarray:
@@ -1162,7 +1163,8 @@ def _split_at_walls(s: FrameSpheres | None, window: tuple[float, float, float, f
                     settle=np.r_[s.settle, a.settle][which],
                     placed={k: np.r_[v, a.placed[k]][which] for k, v in s.placed.items()})
 
-    return replace(s, **pick(keep), wall=int(walls.sum()), wall_y=y[walls], at_walls=FrameSpheres(**pick(walls)))
+    return replace(s, **pick(keep), wall=int(walls.sum()), wall_y=y[walls], wall_x=np.r_[s.x, a.x][walls],
+                   at_walls=FrameSpheres(**pick(walls)))
 
 
 def _walls_by_row(spheres: list, window: tuple[float, float, float, float],
@@ -1170,9 +1172,11 @@ def _walls_by_row(spheres: list, window: tuple[float, float, float, float],
     """(n_t, 2) each map row's walls (plate, lid offsets [d], :func:`wall_lines`) against ``window``,
     or against it as each row followed the walls (``follow``, Analysis.follow); NaN for a bad frame.
     Once the classes are known, the layer on the plate is read with their gap there taken off
-    (:func:`_plate_class_gap`). The lid is read at its lower percentile, LID_MOVE_QUANTILE."""
+    (:func:`_plate_class_gap`). The lid is read at its lower percentile, LID_MOVE_QUANTILE, without
+    its own hemispheres (:func:`_lid_bumps`)."""
     lines = np.full((len(spheres), 2), np.nan)
     gap = _plate_class_gap(spheres, window)
+    bumps_x = _lid_bumps(spheres, window, follow)
     for i, s in enumerate(spheres):
         if s is not None:
             w = row_window(window, follow, i)
@@ -1180,9 +1184,35 @@ def _walls_by_row(spheres: list, window: tuple[float, float, float, float],
             if s.heavy is not None:  # in the plate's half of the bed only
                 low = height(y, w) < N_LAYERS / 2
                 y = y + np.where(low, _half_each(s.heavy, gap * (w[3] - w[1]) / N_LAYERS), 0.0)
-            read = wall_lines(np.r_[y, s.wall_y], w, lid_quantile=LID_MOVE_QUANTILE)
+            across = _near(np.c_[s.wall_x, 0 * s.wall_x], np.c_[bumps_x, 0 * bumps_x],  # across the image only
+                           LID_BUMP_REACH * (w[3] - w[1]) / N_LAYERS)
+            bump = (height(s.wall_y, w) > N_LAYERS / 2) & across
+            read = wall_lines(np.r_[y, s.wall_y[~bump]], w, lid_quantile=LID_MOVE_QUANTILE)
             lines[i] = read.plate, read.lid
     return lines
+
+
+# The lid's hemispheres are detections left out at the walls, which its reading keeps (a window line
+# drawn inside the bed leaves the spheres resting on the lid among them). Read from frame to frame
+# at a low percentile (LID_MOVE_QUANTILE), the lid then took the first of its bumps that crossed
+# into the reading's band where the frames' content moved down: a view moved down 0.1 d read a bed
+# change of 0.066-0.083 as well, and a lid lowered 0.1 d read +0.077, risen (apparatus-S-PP-75-jpeg
+# seed 18, bumps-S-PP seed 12). The lid does not turn, so its bumps stay where the first
+# LID_BUMP_FRAMES frames found them across the image; a sphere that touches the lid between two
+# bumps lies at least 0.87 d across from either (both one diameter across, the bump's centre on the
+# lid), so detections at the lid within LID_BUMP_REACH d across of one found there are its bumps
+# (BENCHMARKS.md, "The lid's bumps in its reading").
+LID_BUMP_FRAMES = 3
+LID_BUMP_REACH = 0.4
+
+
+def _lid_bumps(spheres: list, window: tuple[float, float, float, float], follow: np.ndarray | None) -> np.ndarray:
+    """x [px] of the detections left out at the lid (the lid's half of the window) in the first
+    LID_BUMP_FRAMES frames read: where the lid's hemispheres stand across the image."""
+    xs = [s.wall_x[height(s.wall_y, row_window(window, follow, i)) > N_LAYERS / 2]
+          for i, s in enumerate(spheres) if s is not None][:LID_BUMP_FRAMES]
+    return np.concatenate(xs) if xs else np.zeros(0)
+
 
 
 def _plate_class_gap(spheres: list, window: tuple[float, float, float, float]) -> float:

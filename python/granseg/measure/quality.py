@@ -131,9 +131,9 @@ WALL_LINE_SLACK = 0.1
 # the touching pair. Chosen on the tuning seeds 7-8 (six scenes, moved and risen both ways) for the
 # widest least margin to the checks' limits; the plate keeps the 20th, as a lower one there went
 # down with a lowered lid (S-POM-25 seed 8, which then read 0.071). The first frame's window_lines
-# keeps the 20th, for which its limit was set. The cost: where the frames' content moves down, the
-# lid's bumps' detections cross into the band, and a low percentile takes the first that does
-# (apparatus-S-PP-75-jpeg seed 18; BENCHMARKS.md, "The lid's reading from frame to frame").
+# keeps the 20th, for which its limit was set. A low percentile would take the first of the lid's
+# bumps that crosses into the band: they are left out of it (pipeline.LID_BUMP_REACH; BENCHMARKS.md,
+# "The lid's reading from frame to frame" and "The lid's bumps in its reading").
 LID_MOVE_QUANTILE = 5
 # window_lines reads the first frame only; a camera knocked or a cell that shifts later moves both
 # walls in the image, and every frame after is binned by lines that are off the walls. Each
