@@ -1209,10 +1209,9 @@ LID_BUMP_REACH = 0.4
 def _lid_bumps(spheres: list, window: tuple[float, float, float, float], follow: np.ndarray | None) -> np.ndarray:
     """x [px] of the detections left out at the lid (the lid's half of the window) in the first
     LID_BUMP_FRAMES frames read: where the lid's hemispheres stand across the image."""
-    xs = [s.wall_x[height(s.wall_y, row_window(window, follow, i)) > N_LAYERS / 2]
-          for i, s in enumerate(spheres) if s is not None][:LID_BUMP_FRAMES]
+    read = [i for i, s in enumerate(spheres) if s is not None][:LID_BUMP_FRAMES]  # only these are looked at
+    xs = [spheres[i].wall_x[height(spheres[i].wall_y, row_window(window, follow, i)) > N_LAYERS / 2] for i in read]
     return np.concatenate(xs) if xs else np.zeros(0)
-
 
 
 def _plate_class_gap(spheres: list, window: tuple[float, float, float, float]) -> float:
