@@ -1201,8 +1201,13 @@ def _walls_by_row(spheres: list, window: tuple[float, float, float, float],
 # LID_BUMP_FRAMES frames found them across the image; a sphere that touches the lid between two
 # bumps lies at least 0.87 d across from either (both one diameter across, the bump's centre on the
 # lid), so detections at the lid within LID_BUMP_REACH d across of one found there are its bumps
-# (BENCHMARKS.md, "The lid's bumps in its reading").
-LID_BUMP_FRAMES = 3
+# (BENCHMARKS.md, "The lid's bumps in its reading"). A bump is found in some frames and not in
+# others (in 5-24 of 24 frames on the tuning seeds' bumpy scenes); apparatus-S-PP-75-jpeg seed 22's
+# middle one first in the fifth frame, so three frames missed it, and its lowered lid read 0.069
+# ("The lid's bumps found late"). Only the first frames are looked at, where the view and the lid
+# are as the window was drawn: later, a view moved toward the lid pushes the spheres touching it
+# into the wall clearance, where they would be taken for bumps.
+LID_BUMP_FRAMES = 6
 LID_BUMP_REACH = 0.4
 
 
